@@ -1,0 +1,1 @@
+"""Camera models, calibration from board images, and calibration file formats."""

@@ -1,0 +1,1 @@
+"""The companion service: config, camera capture, MAVLink link, fusion, health, lifecycle."""

@@ -1,0 +1,1 @@
+"""Datasets, synthetic scenes, simulated autopilot, replay, metrics, and the `sdvl` command."""

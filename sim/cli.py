@@ -1,0 +1,58 @@
+"""The `sdvl` command: one entry point, a subcommand per tool.
+
+Each subcommand lives in the package that owns it, in a module with `add_arguments(parser)` and
+`run(args) -> int`; it is imported only when chosen, so `sdvl --help` stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from calib.errors import InputError
+
+EXIT_USER_ERROR = 2
+
+# name -> (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "eval": ("sim.eval_command", "score an estimated trajectory against ground truth (ATE, RPE)"),
+}
+
+
+def build_parser(argv: list[str]) -> tuple[argparse.ArgumentParser, object | None]:
+    """The top-level parser, with the chosen subcommand's module loaded and its arguments added."""
+    parser = argparse.ArgumentParser(
+        prog="sdvl", description="SDVL Companion: monocular visual localisation for drones."
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    chosen = next((a for a in argv if not a.startswith("-")), None)
+    module = None
+    for name, (module_name, help_text) in COMMANDS.items():
+        cmd_parser = sub.add_parser(name, help=help_text, description=help_text)
+        if name == chosen:
+            module = importlib.import_module(module_name)
+            module.add_arguments(cmd_parser)
+    return parser, module
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run `sdvl` with `argv`; returns the process exit code."""
+    argv = sys.argv[1:] if argv is None else argv
+    parser, module = build_parser(argv)
+    args = parser.parse_args(argv)
+    if module is None:
+        parser.print_help()
+        return EXIT_USER_ERROR
+    try:
+        return int(module.run(args) or 0)
+    except InputError as exc:
+        print(f"sdvl {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print(f"sdvl {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,77 @@
+"""Plain inputs: a folder of images, or a video file, with a camera.yaml from the user."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from calib.camera import CameraModel
+from calib.camera_yaml import load_camera
+from calib.errors import InputError
+from sim.sequence import Sequence, image_list_sequence, to_grey
+
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
+VIDEO_SUFFIXES = {".mp4", ".avi", ".mkv", ".mov", ".webm", ".m4v", ".mpg", ".mpeg"}
+DEFAULT_FPS = 30.0
+
+
+def _natural_key(path: Path) -> list:
+    return [int(s) if s.isdigit() else s for s in re.split(r"(\d+)", path.name)]
+
+
+def _find_camera(candidates: list[Path], what: Path) -> CameraModel:
+    for candidate in candidates:
+        if candidate.is_file():
+            return load_camera(candidate)
+    raise InputError("no camera calibration found (looked for "
+                     f"{', '.join(c.name for c in candidates)}); pass --camera FILE", what)
+
+
+def image_files(path: Path) -> list[Path]:
+    """The image files of a folder in natural order (img2 before img10)."""
+    return sorted((p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES),
+                  key=_natural_key)
+
+
+def read_image_folder(path: Path, camera: CameraModel | None = None,
+                      fps: float | None = None) -> Sequence:
+    """The images of a folder in natural order, at `fps` (default 30) from t = 0."""
+    files = image_files(path)
+    if not files:
+        raise InputError("no images in folder", path)
+    camera = camera or _find_camera([path / "camera.yaml", path.parent / "camera.yaml"], path)
+    times = np.arange(len(files)) / (fps or DEFAULT_FPS)
+    return image_list_sequence(path.resolve().name, camera, times, files,
+                               extras={"root": path})
+
+
+def read_video(path: Path, camera: CameraModel | None = None,
+               fps: float | None = None) -> Sequence:
+    """A video file's frames as grey images, timed by its frame rate (or `fps`)."""
+    capture = cv2.VideoCapture(str(path))
+    if not capture.isOpened():
+        raise InputError("cannot open video (missing file or unsupported codec)", path)
+    count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+    fps = fps or capture.get(cv2.CAP_PROP_FPS) or DEFAULT_FPS
+    capture.release()
+    if count <= 0:
+        raise InputError("video reports no frames", path)
+    camera = camera or _find_camera([path.with_suffix(".yaml"), path.parent / "camera.yaml"],
+                                    path)
+
+    def frame_iter():
+        cap = cv2.VideoCapture(str(path))
+        try:
+            for i in range(count):
+                ok, image = cap.read()
+                if not ok:
+                    return
+                yield i / fps, to_grey(image)
+        finally:
+            cap.release()
+
+    return Sequence(path.stem, camera, np.arange(count) / fps, frame_iter=frame_iter,
+                    extras={"root": path})

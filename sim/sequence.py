@@ -1,0 +1,88 @@
+"""What every dataset reader returns: a camera, lazily loaded frames, ground truth and IMU."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from calib.camera import CameraModel
+from calib.errors import InputError
+from sim.trajectory import Trajectory
+
+
+@dataclass
+class ImuSamples:
+    """IMU measurements in the sensor frame: accel (N, 3) m/s^2, gyro (N, 3) rad/s or None."""
+
+    t: np.ndarray
+    accel: np.ndarray
+    gyro: np.ndarray | None = None
+
+
+def load_grey(path: str | Path) -> np.ndarray:
+    """A uint8 grey image from a file; InputError if it cannot be decoded."""
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise InputError("cannot read image (missing or corrupt)", path)
+    return image
+
+
+def to_grey(image: np.ndarray) -> np.ndarray:
+    """A uint8 single-channel copy of a grey, BGR or BGRA image."""
+    if image.ndim == 3:
+        code = cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY
+        image = cv2.cvtColor(image, code)
+    if image.dtype != np.uint8:
+        image = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    return image
+
+
+@dataclass
+class Sequence:
+    """An image sequence: frames come from `frames()` one at a time, never all in memory.
+
+    `timestamps` are seconds; `image_loader(i)` returns frame i as a grey uint8 image, or
+    `frame_iter` yields (t, image) for sources that can only be read in order (video).
+    """
+
+    name: str
+    camera: CameraModel
+    timestamps: np.ndarray
+    image_loader: Callable[[int], np.ndarray] | None = None
+    frame_iter: Callable[[], Iterator[tuple[float, np.ndarray]]] | None = None
+    groundtruth: Trajectory | None = None
+    imu: ImuSamples | None = None
+    extras: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return int(self.timestamps.size)
+
+    def frames(self, max_frames: int | None = None) -> Iterator[tuple[float, np.ndarray]]:
+        """Yield (t_seconds, grey uint8 image) in time order, loading each when asked for."""
+        n = len(self) if max_frames is None else min(len(self), max_frames)
+        if self.image_loader is not None:
+            for i in range(n):
+                yield float(self.timestamps[i]), self.image_loader(i)
+            return
+        assert self.frame_iter is not None
+        for i, item in enumerate(self.frame_iter()):
+            if i >= n:
+                return
+            yield item
+
+    def image(self, index: int) -> np.ndarray:
+        """Frame `index` (random access; only for image-file sequences)."""
+        if self.image_loader is None:
+            raise InputError(f"sequence '{self.name}' can only be read in order")
+        return self.image_loader(index)
+
+
+def image_list_sequence(name: str, camera: CameraModel, times: np.ndarray, paths: list[Path],
+                        **kwargs) -> Sequence:
+    """A sequence of image files, one per timestamp, read when each frame is asked for."""
+    return Sequence(name, camera, np.asarray(times, dtype=np.float64),
+                    image_loader=lambda i: load_grey(paths[i]), **kwargs)

@@ -1,0 +1,19 @@
+"""Shared fixtures: where the read-only test data lives (SDVL_DATA overrides ../shared/data)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+DATA_DIR = Path(os.environ.get("SDVL_DATA", Path(__file__).resolve().parents[1].parent
+                               / "shared" / "data"))
+REAL_SEQUENCES = ("tum_fr1_rpy", "vamr_ex01_checkerboard736", "kitti00_first200")
+
+
+@pytest.fixture(scope="session")
+def data_dir() -> Path:
+    """The shared data folder; the test fails loudly if it is missing (CI must have it)."""
+    assert DATA_DIR.is_dir(), f"test data not found at {DATA_DIR}; set SDVL_DATA"
+    return DATA_DIR

@@ -1,0 +1,1 @@
+"""The SDVL tracker: pure computation, no I/O, no asyncio."""
