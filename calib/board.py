@@ -123,7 +123,8 @@ def visible_chessboard_part(grey: np.ndarray) -> tuple[int, int] | None:
     return int(meta.shape[1]), int(meta.shape[0])
 
 
-def _charuco(spec: BoardSpec):
+def charuco_board(spec: BoardSpec) -> cv2.aruco.CharucoBoard:
+    """The OpenCV ChArUco board object for `spec` (also draws it, for printing or tests)."""
     dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, spec.dictionary))
     marker = spec.marker if spec.marker is not None else 0.75 * spec.square
     board = cv2.aruco.CharucoBoard((spec.cols, spec.rows), spec.square, marker, dictionary)
@@ -138,7 +139,7 @@ class BoardDetector:
         self.spec = spec
         self.thorough = thorough
         if spec.kind == "charuco":
-            self._board = _charuco(spec)
+            self._board = charuco_board(spec)
             self._charuco = cv2.aruco.CharucoDetector(self._board)
         else:
             self._object_points = chessboard_object_points(spec)

@@ -51,10 +51,15 @@ def _radtan(views: list[View], size: tuple[int, int]):
                                                                       strict=False))
 
 
+def _fisheye_flag(name: str) -> int:
+    """OpenCV 4 keeps fisheye flags in cv2.fisheye, OpenCV 5 in cv2."""
+    return int(getattr(cv2.fisheye, name, None) or getattr(cv2, name))
+
+
 def _fisheye(views: list[View], size: tuple[int, int]):
     obj = [v.detection.object_points.reshape(1, -1, 3).astype(np.float64) for v in views]
     img = [v.detection.image_points.reshape(1, -1, 2).astype(np.float64) for v in views]
-    flags = cv2.fisheye.CALIB_RECOMPUTE_EXTRINSIC | cv2.fisheye.CALIB_FIX_SKEW
+    flags = _fisheye_flag("CALIB_RECOMPUTE_EXTRINSIC") | _fisheye_flag("CALIB_FIX_SKEW")
     _, K, dist, rvecs, tvecs = cv2.fisheye.calibrate(
         obj, img, size, np.eye(3), np.zeros(4), flags=flags, criteria=_CRITERIA)
     return K, np.asarray(dist).ravel()[:4], rvecs, tvecs, None

@@ -1,7 +1,7 @@
 """Where calibration images come from: image files, a video file or a live camera device.
 
-Each source yields (name, grey uint8 image or None); None means the file could not be read, so
-the caller can report it by name and go on.
+Each source yields (name, grey uint8 image); image files that cannot be read yield the reason
+instead of the image, so the caller can report them by name and go on.
 """
 
 from __future__ import annotations
@@ -19,10 +19,23 @@ def _grey(image: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
 
 
-def image_files(paths: list[str]) -> Iterator[tuple[str, np.ndarray | None]]:
-    """Each image file as grey, in the order given; None for files OpenCV cannot decode."""
+def read_image(path: str | Path) -> tuple[np.ndarray | None, str | None]:
+    """(grey image, None), or (None, why it cannot be read) for a missing or undecodable file."""
+    try:
+        data = np.frombuffer(Path(path).read_bytes(), dtype=np.uint8)
+    except FileNotFoundError:
+        return None, "file not found"
+    except OSError as exc:
+        return None, f"cannot read file ({exc.strerror})"
+    image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
+    return (image, None) if image is not None else (None, "not an image, or corrupt")
+
+
+def image_files(paths: list[str]) -> Iterator[tuple[str, np.ndarray | str]]:
+    """Each image file as grey in the order given; for unreadable files, the reason instead."""
     for path in paths:
-        yield path, cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        image, problem = read_image(path)
+        yield path, image if image is not None else problem
 
 
 def _capture_frames(capture: cv2.VideoCapture, prefix: str) -> Iterator[tuple[str, np.ndarray]]:

@@ -84,7 +84,8 @@ class CalibrationReport:
                   for v, e in zip(self.calibration.views, res.per_view_rms, strict=True)]
         lines += [f"  rejected {n}: outlier reprojection error {e:.3f} px"
                   for n, e in self.calibration.rejected]
-        lines += [f"  skipped {n}: {r}" for n, r in self.skipped]
+        if self.skipped:
+            lines.append(f"  {len(self.skipped)} image(s) skipped (each named with its reason)")
         lines.append(f"  coverage: corners seen in {self.coverage.fraction:.0%} of the image")
         lines += [f"  advice: {a}" for a in self.advice()]
         return "\n".join(lines)

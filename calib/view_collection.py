@@ -30,11 +30,11 @@ class CollectedViews:
     images: dict[str, np.ndarray] = field(default_factory=dict)
 
 
-def _problem(grey: np.ndarray | None, detector: BoardDetector, size: tuple[int, int] | None,
+def _problem(grey: np.ndarray | str, detector: BoardDetector, size: tuple[int, int] | None,
              max_blur_px: float):
     """(detection, None) for a usable view, (None, reason) otherwise."""
-    if grey is None:
-        return None, "cannot read image (missing, not an image, or corrupt)"
+    if isinstance(grey, str):
+        return None, f"cannot read image: {grey}"
     if size is not None and (grey.shape[1], grey.shape[0]) != size:
         return None, (f"image is {grey.shape[1]}x{grey.shape[0]}, the first one was "
                       f"{size[0]}x{size[1]}")
@@ -46,11 +46,13 @@ def _problem(grey: np.ndarray | None, detector: BoardDetector, size: tuple[int, 
     return (None, reason) if reason else (detection, None)
 
 
-def collect_views(frames: Iterable[tuple[str, np.ndarray | None]], detector: BoardDetector,
+def collect_views(frames: Iterable[tuple[str, np.ndarray | str]], detector: BoardDetector,
                   max_blur_px: float, gate: MotionGate | None = None,
                   stop_after: int | None = None, keep_images: bool = False,
                   log: Callable[[str], None] | None = None) -> CollectedViews:
     """Detect and check the board in each frame; with a `gate`, keep only frames where it moved.
+
+    A frame given as a string instead of an image is one that could not be read (the reason).
 
     Stops after `stop_after` kept views or on Ctrl-C (live mode), keeping what it has.
     """
@@ -59,7 +61,7 @@ def collect_views(frames: Iterable[tuple[str, np.ndarray | None]], detector: Boa
         for name, grey in frames:
             out.counts["frames"] += 1
             detection, reason = _problem(grey, detector, out.size, max_blur_px)
-            if out.size is None and grey is not None:
+            if out.size is None and not isinstance(grey, str):
                 out.size = (grey.shape[1], grey.shape[0])
             if reason is not None:
                 out.counts[reason.split(" (")[0]] += 1

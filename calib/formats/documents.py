@@ -6,6 +6,7 @@ Also the small helpers every format uses to pull numbers out with errors naming 
 
 from __future__ import annotations
 
+import contextlib
 import re
 from pathlib import Path
 
@@ -81,10 +82,8 @@ def number(data: dict, key: str, path: str | Path, default: float | None = None)
     if value is None:
         raise InputError(f"missing key '{key}'", path)
     if isinstance(value, str):  # YAML 1.1 reads OpenCV's "1e-05" as a string
-        try:
+        with contextlib.suppress(ValueError):
             value = float(value)
-        except ValueError:
-            pass
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise InputError(f"'{key}' must be a number, got {value!r}", path)
     return float(value)
