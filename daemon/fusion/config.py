@@ -1,0 +1,95 @@
+"""Settings of the fusion filter: noise models, thresholds for publishing, sensor limits.
+
+All fields are plain numbers or flags, so the service can read them from a `[fusion]` TOML table
+with the same validation as its other sections. Standard deviations are in SI units (m, m/s,
+m/s^2, rad); `*_deg` fields are degrees.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from calib.errors import InputError
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """Defaults suit a small multirotor with a downward camera and an ArduPilot/PX4 autopilot."""
+
+    # camera position in the body frame (FRD, metres): the lever arm between camera and IMU
+    camera_x_m: float = 0.0
+    camera_y_m: float = 0.0
+    camera_z_m: float = 0.0
+    # publication gate: scale and heading standard deviations below these, for min_aligned_s
+    scale_std_max: float = 0.03  # relative (0.03 = 3 %)
+    heading_std_max_deg: float = 2.0
+    min_aligned_s: float = 0.5
+    progress_interval_s: float = 2.0
+    # priors of a new map segment
+    scale_prior_std: float = 2.0  # of ln(scale): 2.0 lets the scale be 7x off either way
+    initial_scale: float = 1.0  # metres per VO unit guessed for the first segment
+    # tracker pose: floor of the position noise (metres) and inflation per tracking quality
+    vo_position_std_m: float = 0.02
+    vo_rotation_std_deg: float = 0.5
+    vo_drift_per_m: float = 0.01  # VO position drift, metres per metre travelled (random walk)
+    inflate_insufficient: float = 4.0  # variance factor
+    inflate_bad: float = 25.0
+    # autopilot attitude (ATTITUDE): roll/pitch and compass heading noise
+    attitude_std_deg: float = 1.0
+    heading_std_deg: float = 3.0
+    attitude_timeout_s: float = 0.5
+    alignment_walk_deg_per_sqrt_s: float = 0.05  # VO rotation drift against the autopilot's
+    scale_walk_per_sqrt_s: float = 0.002  # ln(scale) random walk (scale drift of the map)
+    # IMU (HIGHRES_IMU / SCALED_IMU / RAW_IMU): accelerometer noise and bias
+    use_imu: bool = True
+    accel_noise: float = 0.3  # m/s^2 per sample period, includes attitude error times gravity
+    accel_bias_std: float = 0.2  # m/s^2 initial
+    accel_bias_walk: float = 0.01  # m/s^2 per sqrt(s)
+    imu_timeout_s: float = 0.1
+    # without IMU: constant velocity with this acceleration noise
+    motion_accel_std: float = 2.0  # m/s^2
+    # downward rangefinder (DISTANCE_SENSOR, orientation PITCH_270)
+    use_rangefinder: bool = True
+    range_std_m: float = 0.05
+    range_std_fraction: float = 0.01
+    range_max_tilt_deg: float = 30.0
+    ground_walk_m_per_sqrt_s: float = 0.05  # terrain height under the vehicle
+    # barometer (SCALED_PRESSURE / HIGHRES_IMU pressure)
+    use_baro: bool = True
+    baro_std_m: float = 0.3
+    baro_walk_m_per_sqrt_s: float = 0.02
+    # outlier rejection: chi-square gate per measurement (99.9 % for 1 and 3 dof are 10.8, 16.3)
+    gate_chi2_1dof: float = 10.8
+    gate_chi2_3dof: float = 16.3
+    reset_after_rejections: int = 10  # consecutive range/baro rejections: re-reference them
+    # timing
+    history_s: float = 1.0  # late messages up to this old are fused by replaying the filter
+    clock_offset_window_s: float = 10.0
+    # output
+    quality_good_std_m: float = 0.05  # position std that earns quality 100
+    rate_std_rad_s: float = 0.05
+
+    def check(self) -> None:
+        """InputError naming the first setting that makes no sense."""
+        positive = ("scale_std_max", "heading_std_max_deg", "progress_interval_s",
+                    "scale_prior_std", "initial_scale", "vo_position_std_m",
+                    "vo_rotation_std_deg", "attitude_std_deg", "heading_std_deg",
+                    "attitude_timeout_s", "accel_noise", "accel_bias_std", "imu_timeout_s",
+                    "motion_accel_std", "range_std_m", "baro_std_m", "gate_chi2_1dof",
+                    "gate_chi2_3dof", "history_s", "clock_offset_window_s",
+                    "quality_good_std_m", "rate_std_rad_s")
+        for key in positive:
+            if not getattr(self, key) > 0:
+                raise InputError(f"fusion.{key} must be > 0")
+        non_negative = ("min_aligned_s", "vo_drift_per_m", "alignment_walk_deg_per_sqrt_s",
+                        "scale_walk_per_sqrt_s", "accel_bias_walk", "range_std_fraction",
+                        "ground_walk_m_per_sqrt_s", "baro_walk_m_per_sqrt_s")
+        for key in non_negative:
+            if not getattr(self, key) >= 0:
+                raise InputError(f"fusion.{key} must be >= 0")
+        if not (self.inflate_insufficient >= 1 and self.inflate_bad >= 1):
+            raise InputError("fusion.inflate_insufficient and fusion.inflate_bad must be >= 1")
+        if not 0 < self.range_max_tilt_deg < 90:
+            raise InputError("fusion.range_max_tilt_deg must be in (0, 90)")
+        if self.reset_after_rejections < 1:
+            raise InputError("fusion.reset_after_rejections must be >= 1")

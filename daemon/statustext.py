@@ -1,0 +1,44 @@
+"""STATUSTEXT on state changes only, at most one per interval; changes in between merge."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+PREFIX = "VIO: "
+MAX_TEXT = 50
+
+
+class StatusTexts:
+    """`report(text)` sends when the text differs from the last one and the interval allows;
+    otherwise the newest pending text goes out at the next `flush` that is allowed."""
+
+    def __init__(self, interval_s: float, send: Callable[[int, str], None]):
+        self.interval_s = interval_s
+        self.send = send
+        self.last_text: str | None = None
+        self.last_time = float("-inf")
+        self.pending: tuple[int, str] | None = None
+        self.merged = 0
+
+    def report(self, text: str, now: float,
+               severity: int = mavlink2.MAV_SEVERITY_INFO) -> None:
+        """Queue a state-change text (prefixed 'VIO: ', cut to 50 characters)."""
+        text = (PREFIX + text)[:MAX_TEXT]
+        if self.pending is not None:
+            self.merged += 1
+        elif text == self.last_text:
+            return
+        self.pending = (severity, text)
+        self.flush(now)
+
+    def flush(self, now: float) -> None:
+        """Send the pending text if the interval since the last one has passed."""
+        if self.pending is None or now - self.last_time < self.interval_s:
+            return
+        severity, text = self.pending
+        self.pending = None
+        if text != self.last_text:
+            self.send(severity, text)
+            self.last_text, self.last_time = text, now
