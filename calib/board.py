@@ -76,10 +76,7 @@ class Detection:
     @property
     def spacing_px(self) -> float:
         """Median distance in pixels from each corner to its nearest neighbour."""
-        pts = self.image_points
-        d = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=2)
-        np.fill_diagonal(d, np.inf)
-        return float(np.median(d.min(axis=1)))
+        return _spacing(self.image_points)
 
 
 def chessboard_object_points(spec: BoardSpec) -> np.ndarray:
@@ -91,9 +88,7 @@ def chessboard_object_points(spec: BoardSpec) -> np.ndarray:
 
 def _subpix_half_window(corners: np.ndarray) -> int:
     """Half size of the cornerSubPix window: a third of the corner spacing, 3..11 pixels."""
-    d = np.linalg.norm(corners[:, None, :] - corners[None, :, :], axis=2)
-    np.fill_diagonal(d, np.inf)
-    return int(np.clip(round(0.3 * np.median(d.min(axis=1))), 3, 11))
+    return int(np.clip(round(0.3 * _spacing(corners)), 3, 11))
 
 
 def _find_chessboard(grey: np.ndarray, spec: BoardSpec, thorough: bool) -> np.ndarray | None:
@@ -111,16 +106,41 @@ def _find_chessboard(grey: np.ndarray, spec: BoardSpec, thorough: bool) -> np.nd
     return corners.reshape(-1, 2).astype(np.float64) if found else None
 
 
-def visible_chessboard_part(grey: np.ndarray) -> tuple[int, int] | None:
-    """(cols, rows) of the largest chessboard corner grid visible (at least 3x3), or None.
+def _spacing(points: np.ndarray) -> float:
+    """Median distance in pixels from each point (N, 2) to its nearest neighbour."""
+    d = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=2)
+    np.fill_diagonal(d, np.inf)
+    return float(np.median(d.min(axis=1)))
 
-    Used to tell a board that is cut off or partly hidden from an image with no board at all.
+
+def _is_grid(points: np.ndarray, cols: int, rows: int) -> bool:
+    """True when row-major `points` look like a (perspective, mildly distorted) corner grid."""
+    xs, ys = np.meshgrid(np.arange(cols), np.arange(rows))
+    ideal = np.column_stack([xs.ravel(), ys.ravel()]).astype(np.float64)
+    H, _ = cv2.findHomography(ideal, points)
+    if H is None:
+        return False
+    fitted = cv2.perspectiveTransform(ideal.reshape(-1, 1, 2), H).reshape(-1, 2)
+    return float(np.abs(fitted - points).max()) < 0.35 * _spacing(points)
+
+
+def chessboard_cut_by_border(grey: np.ndarray) -> tuple[int, int] | None:
+    """(cols, rows) of a chessboard corner grid (3x3 or more) running into the image border.
+
+    Tells a board that is cut off from an image with no board at all; a grid-like patch in the
+    middle of a scene (windows, tiles) does not count.
     """
     flags = _SB_FLAGS | cv2.CALIB_CB_LARGER
-    found, _, meta = cv2.findChessboardCornersSBWithMeta(grey, (3, 3), flags=flags)
-    if not found or meta is None:
+    found, corners, meta = cv2.findChessboardCornersSBWithMeta(grey, (3, 3), flags=flags)
+    if not found or meta is None or corners is None:
         return None
-    return int(meta.shape[1]), int(meta.shape[0])
+    pts = corners.reshape(-1, 2).astype(np.float64)
+    rows, cols = meta.shape[:2]
+    if rows * cols != len(pts) or not _is_grid(pts, cols, rows):
+        return None
+    h, w = grey.shape
+    gap = min(pts[:, 0].min(), pts[:, 1].min(), w - 1 - pts[:, 0].max(), h - 1 - pts[:, 1].max())
+    return (int(meta.shape[1]), int(meta.shape[0])) if gap < 1.5 * _spacing(pts) else None
 
 
 def charuco_board(spec: BoardSpec) -> cv2.aruco.CharucoBoard:

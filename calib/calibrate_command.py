@@ -68,7 +68,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     calib.add_argument("--outlier-factor", type=float, default=DEFAULT_OUTLIER_FACTOR,
                        help="reject views with RMS error above this x the median "
                             "(default %(default)s)")
-    calib.add_argument("--min-move", type=float, default=0.05, metavar="FRACTION",
+    calib.add_argument("--min-move", type=float, default=0.03, metavar="FRACTION",
                        help="video/device: keep a frame when the board moved this fraction "
                             "of the image diagonal from every kept view (default %(default)s)")
     calib.add_argument("--max-views", type=int, default=40,

@@ -8,7 +8,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from calib.board import BoardSpec, Detection, visible_chessboard_part
+from calib.board import BoardSpec, Detection, chessboard_cut_by_border
 
 DEFAULT_MAX_BLUR_PX = 5.0
 _MIN_EDGE_CONTRAST = 20.0
@@ -63,11 +63,11 @@ def view_problem(grey: np.ndarray, detection: Detection, max_blur_px: float) -> 
 
 
 def missing_board_reason(grey: np.ndarray, spec: BoardSpec) -> str:
-    """Why no usable board was found: cut off / partly hidden, or simply not there."""
+    """Why no usable board was found: cut off by the image border, or simply not there."""
     if spec.kind == "charuco":
         return "no board found (fewer than 6 ChArUco corners recognised)"
-    part = visible_chessboard_part(grey)
+    part = chessboard_cut_by_border(grey)
     if part is not None and part[0] * part[1] < spec.n_corners:
-        return (f"board cut off or partly hidden (only a {part[0]}x{part[1]} corner grid "
+        return (f"board cut off by the image border (only a {part[0]}x{part[1]} corner grid "
                 f"visible of {spec.cols}x{spec.rows})")
     return "no board found"
