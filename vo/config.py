@@ -1,0 +1,121 @@
+"""Every tracker parameter in one place, with the thesis defaults (Perdices 2017, ch. 6-7)."""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any
+
+from calib.errors import InputError
+
+
+@dataclass
+class TrackerConfig:
+    """Parameters of the SDVL tracker; pixel quantities are at pyramid level 0."""
+
+    # frames (6.2, 6.4)
+    pyramid_levels: int = 5
+    fast_threshold: int = 10
+    grid_cell: int = 32
+
+    # sparse image alignment (6.7.1)
+    align_max_level: int = 4
+    align_min_level: int = 2
+    align_iterations: int = 30
+
+    # feature alignment and pose refinement (6.7.2, 6.7.3)
+    max_matches: int = 200
+    align2d_iterations: int = 10
+    track_candidates: bool = True
+    candidate_min_updates: int = 3
+    pose_iterations: int = 10
+    reprojection_inlier_px: float = 2.0
+    constant_velocity: bool = True
+
+    # quality (6.10)
+    quality_min_ratio: float = 0.2
+    quality_min_matches: int = 20
+    lost_after_bad: int = 3
+    reinit_when_lost: bool = True
+
+    # keyframes and mapping (6.6)
+    kf_min_frames: int = 30
+    kf_points_ratio: float = 0.9
+    lost_points_ratio: float = 0.3
+    max_keyframes: int = 30
+    covisible_min_shared: int = 10
+    mapping_queue_size: int = 4
+
+    # map initialisation (6.6.1)
+    init_min_features: int = 50
+    init_max_features: int = 300
+    init_min_disparity_px: float = 20.0
+    init_min_tracked: int = 40
+    init_ransac_px: float = 2.0
+    init_min_inliers: int = 40
+    init_map_depth: float = 1.0
+
+    # points, depth filter and matcher (6.3, 6.5, 6.6.2, 6.6.3)
+    seed_a: float = 10.0
+    seed_b: float = 10.0
+    seed_sigma_ratio: float = 1.0
+    convergence_L: float = 0.1
+    seed_max_failures: int = 5
+    epipolar_margin_px: float = 2.0
+    zmssd_threshold: float = 2000.0
+    match_max_level: int = 2
+    min_inlier_probability: float = 0.1
+
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.pyramid_levels <= 8:
+            raise InputError("pyramid_levels must be between 1 and 8")
+        if not 0 <= self.align_min_level <= self.align_max_level < self.pyramid_levels:
+            raise InputError("need 0 <= align_min_level <= align_max_level < pyramid_levels")
+        if self.match_max_level >= self.pyramid_levels:
+            raise InputError("match_max_level must be below pyramid_levels")
+        if self.grid_cell < 8 or self.max_matches < 6 or self.max_keyframes < 3:
+            raise InputError("grid_cell >= 8, max_matches >= 6 and max_keyframes >= 3 required")
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], path: str | Path | None = None) -> TrackerConfig:
+        """A config from a mapping of parameter names; unknown keys and wrong types are errors."""
+        known = {f.name: f for f in fields(cls)}
+        values: dict[str, Any] = {}
+        for key, value in d.items():
+            if key not in known:
+                raise InputError(f"unknown tracker parameter '{key}'", path)
+            values[key] = _checked(key, known[key].type, value, path)
+        return cls(**values)
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> TrackerConfig:
+        """A config from a TOML file (top level, or a [tracker] table)."""
+        path = Path(path)
+        try:
+            data = tomllib.loads(path.read_text())
+        except FileNotFoundError as exc:
+            raise InputError("no such config file", path) from exc
+        except tomllib.TOMLDecodeError as exc:
+            raise InputError(f"not valid TOML: {exc}", path) from exc
+        if isinstance(data.get("tracker"), dict):
+            data = data["tracker"]
+        return cls.from_dict(data, path)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The parameters as a plain mapping (for reports and TOML round trips)."""
+        return asdict(self)
+
+
+def _checked(key: str, type_name: str, value: Any, path: str | Path | None) -> Any:
+    """`value` converted to the field's type, or an InputError naming the key."""
+    ok = {
+        "int": isinstance(value, int) and not isinstance(value, bool),
+        "float": isinstance(value, int | float) and not isinstance(value, bool),
+        "bool": isinstance(value, bool),
+    }[type_name]
+    if not ok:
+        raise InputError(f"tracker parameter '{key}' must be {type_name}, got {value!r}", path)
+    return float(value) if type_name == "float" else value

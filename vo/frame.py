@@ -1,0 +1,137 @@
+"""A frame: its image pyramid in one flat buffer, FAST corners per level with a row index, pose.
+
+The pyramid is stored flat (`pyr`, with per-level `offsets`, `widths`, `heights`) so numba
+kernels take any level, and a keyframe's pyramid can be copied into a slot of the map's store.
+Pixel coordinates at level l are level-0 coordinates divided by 2**l.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numba
+import numpy as np
+
+from calib.camera import CameraModel, unproject_pixel
+
+
+class Pyramid:
+    """Image pyramid with `levels` levels packed into one uint8 buffer."""
+
+    def __init__(self, image: np.ndarray, levels: int):
+        imgs = [np.ascontiguousarray(image)]
+        for _ in range(levels - 1):
+            imgs.append(cv2.pyrDown(imgs[-1]))
+        self.images = imgs
+        self.widths = np.array([im.shape[1] for im in imgs], dtype=np.int64)
+        self.heights = np.array([im.shape[0] for im in imgs], dtype=np.int64)
+        sizes = self.widths * self.heights
+        self.offsets = np.concatenate(([0], np.cumsum(sizes)[:-1])).astype(np.int64)
+        self.flat = np.concatenate([im.ravel() for im in imgs])
+
+    @staticmethod
+    def flat_size(width: int, height: int, levels: int) -> int:
+        """Buffer length a pyramid of an image of this size needs."""
+        total, w, h = 0, width, height
+        for _ in range(levels):
+            total += w * h
+            w, h = (w + 1) // 2, (h + 1) // 2
+        return total
+
+
+class Corners:
+    """FAST corners of all levels, sorted by (level, row, column), with per-level row starts.
+
+    Columns: `x`, `y` (level pixels), `level`, `score`, `xn`, `yn` (undistorted normalised
+    image-plane coordinates), `level_start` (L+1), `row_start[l]` (height_l + 1 entries).
+    """
+
+    def __init__(self, pyramid: Pyramid, camera: CameraModel, threshold: int):
+        detector = cv2.FastFeatureDetector_create(threshold=threshold, nonmaxSuppression=True)
+        xs, ys, lv, sc = [], [], [], []
+        for level, img in enumerate(pyramid.images):
+            kps = detector.detect(img)
+            if kps:
+                pts = np.array([k.pt for k in kps], dtype=np.float64)
+                resp = np.array([k.response for k in kps], dtype=np.float64)
+            else:
+                pts, resp = np.zeros((0, 2)), np.zeros(0)
+            order = np.lexsort((pts[:, 0], pts[:, 1]))
+            xs.append(pts[order, 0])
+            ys.append(pts[order, 1])
+            sc.append(resp[order])
+            lv.append(np.full(len(order), level, dtype=np.int64))
+        self.x = np.concatenate(xs)
+        self.y = np.concatenate(ys)
+        self.score = np.concatenate(sc)
+        self.level = np.concatenate(lv)
+        counts = np.array([len(a) for a in xs], dtype=np.int64)
+        self.level_start = np.concatenate(([0], np.cumsum(counts))).astype(np.int64)
+        max_h = int(pyramid.heights[0]) + 1
+        self.row_start = np.zeros((len(xs), max_h + 1), dtype=np.int64)
+        for level in range(len(xs)):
+            lo, hi = self.level_start[level], self.level_start[level + 1]
+            rows = self.y[lo:hi].astype(np.int64)
+            self.row_start[level] = lo + np.searchsorted(rows, np.arange(max_h + 1), side="left")
+        self.xn, self.yn = _normalised(camera.params, self.x, self.y, self.level)
+
+
+@numba.njit(cache=True, nogil=True)
+def _normalised(params, x, y, level):
+    """Undistorted normalised-plane coordinates of level pixels."""
+    n = x.shape[0]
+    xn = np.empty(n)
+    yn = np.empty(n)
+    for i in range(n):
+        s = 2.0 ** level[i]
+        bx, by, bz = unproject_pixel(params, x[i] * s, y[i] * s)
+        xn[i] = bx / bz
+        yn[i] = by / bz
+    return xn, yn
+
+
+class Frame:
+    """One camera image with its pyramid, lazily its FAST corners, and its pose T_c_w.
+
+    `feat_*` columns hold the map points matched in this frame (filled by tracking).
+    """
+
+    def __init__(self, frame_id: int, t: float, image: np.ndarray, camera: CameraModel,
+                 levels: int):
+        self.id = frame_id
+        self.t = t
+        self.camera = camera
+        self.pyr = Pyramid(image, levels)
+        self.T_c_w = np.eye(4)
+        self._corners: Corners | None = None
+        self.feat_point = np.zeros(0, dtype=np.int64)
+        self.feat_px = np.zeros((0, 2))
+        self.feat_level = np.zeros(0, dtype=np.int64)
+        self.n_visible = 0
+        self.is_keyframe = False
+        self.slot = -1
+
+    @property
+    def T_w_c(self) -> np.ndarray:
+        """World-from-camera pose."""
+        R = self.T_c_w[:3, :3]
+        out = np.eye(4)
+        out[:3, :3] = R.T
+        out[:3, 3] = -R.T @ self.T_c_w[:3, 3]
+        return out
+
+    @property
+    def position(self) -> np.ndarray:
+        """Camera centre in the world."""
+        return -self.T_c_w[:3, :3].T @ self.T_c_w[:3, 3]
+
+    def corners(self, threshold: int) -> Corners:
+        """FAST corners of every level (detected on first use)."""
+        if self._corners is None:
+            self._corners = Corners(self.pyr, self.camera, threshold)
+        return self._corners
+
+    def set_features(self, point: np.ndarray, px: np.ndarray, level: np.ndarray) -> None:
+        """Record the map points matched in this frame and where."""
+        self.feat_point = point
+        self.feat_px = px
+        self.feat_level = level

@@ -1,0 +1,147 @@
+"""Automatic map initialisation (thesis 6.6.1): LK-track the first keyframe's corners until the
+mean shift passes a threshold, then RANSAC homography, decomposition, choice by Sampson error,
+triangulation and scaling to a median depth."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from calib.camera import CameraModel
+from vo.config import TrackerConfig
+from vo.frame import Frame
+from vo.matcher import triangulate_depth
+from vo.se3 import orthonormalized
+
+LK_WINDOW = (21, 21)
+LK_LEVELS = 3
+
+
+@dataclass
+class InitialMap:
+    """Two-view result: T_cur_ref, and per point its ref/cur level-0 pixels, ref bearing, depth."""
+
+    T_cur_ref: np.ndarray
+    px_ref: np.ndarray
+    px_cur: np.ndarray
+    f_ref: np.ndarray
+    depth: np.ndarray
+
+
+def best_per_cell(x: np.ndarray, y: np.ndarray, score: np.ndarray, cell: int,
+                  width: int) -> np.ndarray:
+    """Indices of the highest-scoring point in each grid cell."""
+    cols = (width + cell - 1) // cell
+    cid = (y // cell).astype(np.int64) * cols + (x // cell).astype(np.int64)
+    order = np.lexsort((-score, cid))
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = cid[order][1:] != cid[order][:-1]
+    return order[first]
+
+
+def sampson_error(E: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+    """Sampson distance of normalised correspondences (N, 2) to the essential matrix E."""
+    h1 = np.column_stack((x1, np.ones(len(x1))))
+    h2 = np.column_stack((x2, np.ones(len(x2))))
+    Ex1 = h1 @ E.T
+    Etx2 = h2 @ E
+    num = np.einsum("ij,ij->i", h2, Ex1) ** 2
+    den = Ex1[:, 0] ** 2 + Ex1[:, 1] ** 2 + Etx2[:, 0] ** 2 + Etx2[:, 1] ** 2
+    return num / np.maximum(den, 1e-30)
+
+
+def pose_from_homography(x1: np.ndarray, x2: np.ndarray, threshold: float, seed: int):
+    """(R, t, inlier mask) of the second view from normalised points via a RANSAC homography,
+    picking among the physically valid decompositions by Sampson error; None on failure."""
+    cv2.setRNGSeed(seed)
+    H, mask = cv2.findHomography(x1, x2, cv2.RANSAC, threshold, maxIters=2000, confidence=0.999)
+    if H is None:
+        return None
+    inl = mask.ravel().astype(bool)
+    _, Rs, ts, ns = cv2.decomposeHomographyMat(H, np.eye(3))
+    valid = cv2.filterHomographyDecompByVisibleRefpoints(
+        Rs, ns, x1[inl].reshape(-1, 1, 2).astype(np.float32),
+        x2[inl].reshape(-1, 1, 2).astype(np.float32))
+    candidates = range(len(Rs)) if valid is None else valid.ravel()
+    best, best_err = None, np.inf
+    for i in candidates:
+        R, t = Rs[i], ts[i].ravel()
+        if np.linalg.norm(t) < 1e-12:
+            continue
+        tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+        err = float(np.sum(sampson_error(tx @ R, x1[inl], x2[inl])))
+        if err < best_err:
+            best, best_err = (R, t / np.linalg.norm(t)), err
+    if best is None:
+        return None
+    return best[0], best[1], inl
+
+
+class Initializer:
+    """Tracks the reference frame's corners into new frames until a map can be built."""
+
+    def __init__(self, camera: CameraModel, config: TrackerConfig):
+        self.camera = camera
+        self.config = config
+        self.ref: Frame | None = None
+        self.px_ref = np.zeros((0, 2), np.float32)
+        self.px_cur = np.zeros((0, 2), np.float32)
+
+    def set_reference(self, frame: Frame) -> bool:
+        """Start from `frame` if it has enough corners; False otherwise."""
+        c = frame.corners(self.config.fast_threshold)
+        s = 2.0 ** c.level
+        x, y = c.x * s, c.y * s
+        keep = best_per_cell(x, y, c.score, self.config.grid_cell, self.camera.width)
+        keep = keep[np.argsort(-c.score[keep])][: self.config.init_max_features]
+        if len(keep) < self.config.init_min_features:
+            self.ref = None
+            return False
+        self.ref = frame
+        self.px_ref = np.column_stack((x[keep], y[keep])).astype(np.float32)
+        self.px_cur = self.px_ref.copy()
+        return True
+
+    def add(self, frame: Frame) -> InitialMap | str | None:
+        """Track into `frame`: an InitialMap when ready, None to keep going, 'restart' when the
+        reference should be replaced by this frame."""
+        nxt, status, _ = cv2.calcOpticalFlowPyrLK(
+            self.ref.pyr.images[0], frame.pyr.images[0], self.px_ref, self.px_cur.copy(),
+            winSize=LK_WINDOW, maxLevel=LK_LEVELS, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01))
+        ok = status.ravel().astype(bool) & self.camera.in_image(nxt, 1.0)
+        self.px_ref, self.px_cur = self.px_ref[ok], nxt[ok]
+        if len(self.px_ref) < self.config.init_min_tracked:
+            return "restart"
+        shift = np.linalg.norm(self.px_cur - self.px_ref, axis=1)
+        if np.mean(shift) < self.config.init_min_disparity_px:
+            return None
+        result = self._two_view()
+        return "restart" if result is None else result
+
+    def _two_view(self) -> InitialMap | None:
+        f_ref = self.camera.unproject(self.px_ref)
+        f_cur = self.camera.unproject(self.px_cur)
+        x1 = f_ref[:, :2] / f_ref[:, 2:]
+        x2 = f_cur[:, :2] / f_cur[:, 2:]
+        focal = float(np.sqrt(self.camera.fx * self.camera.fy))
+        found = pose_from_homography(x1, x2, self.config.init_ransac_px / focal, self.config.seed)
+        if found is None:
+            return None
+        R, t, inl = found
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, t
+        T = orthonormalized(T)
+        depth = np.array([triangulate_depth(T, f_ref[i], f_cur[i]) for i in range(len(f_ref))])
+        X_cur = (f_ref * depth[:, None]) @ R.T + t
+        with np.errstate(invalid="ignore", divide="ignore"):
+            err = np.linalg.norm(X_cur[:, :2] / X_cur[:, 2:] - x2, axis=1) * focal
+        good = inl & (depth > 0) & (X_cur[:, 2] > 0) & (err < 2.0 * self.config.init_ransac_px)
+        if good.sum() < self.config.init_min_inliers:
+            return None
+        scale = self.config.init_map_depth / float(np.median(depth[good]))
+        T[:3, 3] *= scale
+        return InitialMap(T, self.px_ref[good].astype(np.float64),
+                          self.px_cur[good].astype(np.float64), f_ref[good], depth[good] * scale)

@@ -1,0 +1,259 @@
+"""Mapping (thesis 6.6): depth-filter updates of candidate points on every frame, new candidates
+on keyframes (one per empty cell, best Shi-Tomasi corner, matched in a covisible keyframe), and
+keyframe removal farthest-first."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from calib.camera import unproject_pixel
+from vo.config import TrackerConfig
+from vo.depth_filter import linearity_index, update_seed
+from vo.frame import Frame
+from vo.initialization import best_per_cell
+from vo.map import CANDIDATE, CONVERGED, Map
+from vo.matcher import inverse_depth_sigma, match_epipolar, triangulate_depth
+from vo.se3 import inv_se3
+
+SHI_TOMASI_HALF = 3
+
+
+@numba.njit(cache=True, nogil=True)
+def shi_tomasi(flat, off, w, h, level, x, y):
+    """Minimum eigenvalue of the structure tensor around integer corners (x, y) of their level."""
+    n = x.shape[0]
+    out = np.zeros(n)
+    r = SHI_TOMASI_HALF
+    for i in range(n):
+        lv = level[i]
+        cx, cy, W, Hh = int(x[i]), int(y[i]), w[lv], h[lv]
+        if cx < r + 1 or cy < r + 1 or cx >= W - r - 1 or cy >= Hh - r - 1:
+            continue
+        gxx = gyy = gxy = 0.0
+        for yy in range(cy - r, cy + r + 1):
+            base = off[lv] + yy * W
+            for xx in range(cx - r, cx + r + 1):
+                gx = 0.5 * (float(flat[base + xx + 1]) - float(flat[base + xx - 1]))
+                gy = 0.5 * (float(flat[base + W + xx]) - float(flat[base - W + xx]))
+                gxx += gx * gx
+                gyy += gy * gy
+                gxy += gx * gy
+        out[i] = 0.5 * (gxx + gyy - np.sqrt((gxx - gyy) ** 2 + 4.0 * gxy * gxy))
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _measure(params, ref_flat, u, v, level, f, rho, sigma, T_cur_ref, pyr_off, pyr_w, pyr_h,
+             cur_flat, cx, cy, cxn, cyn, c_row_start, max_level, margin, threshold, iterations,
+             px_angle):
+    """Epipolar match of one point and the inverse-depth measurement it gives:
+    (found, x, tau, u_cur, v_cur)."""
+    uc, vc, lv, ok = match_epipolar(params, ref_flat, pyr_off, pyr_w, pyr_h, u, v, level, f,
+                                    rho, sigma, T_cur_ref, cur_flat, pyr_off, pyr_w, pyr_h,
+                                    cx, cy, cxn, cyn, c_row_start, max_level, margin,
+                                    threshold, iterations)
+    if not ok:
+        return False, 0.0, 0.0, uc, vc
+    bx, by, bz = unproject_pixel(params, uc, vc)
+    depth = triangulate_depth(T_cur_ref, f, np.array([bx, by, bz]))
+    if depth <= 0.0:
+        return False, 0.0, 0.0, uc, vc
+    tau = inverse_depth_sigma(T_cur_ref, f, depth, px_angle * 2.0 ** lv)
+    return True, 1.0 / depth, tau, uc, vc
+
+
+@numba.njit(cache=True, nogil=True)
+def update_candidates(params, idx, host, u, v, level, f, rho, sigma, a, b, rho_range, n_failed,
+                      n_updates, status, pos_w, kf_pyr, kf_T_c_w, T_c_w, pyr_off, pyr_w, pyr_h,
+                      cur_flat, cx, cy, cxn, cyn, c_row_start, max_level, margin, threshold,
+                      iterations, px_angle, max_failures, min_inlier, conv_L):
+    """Search every candidate idx in the current frame and fold the result into its filter.
+
+    Returns (found mask, level-0 positions (N, 2), delete mask)."""
+    n = idx.shape[0]
+    found = np.zeros(n, dtype=np.bool_)
+    uv = np.zeros((n, 2))
+    delete = np.zeros(n, dtype=np.bool_)
+    cam_pos = -(T_c_w[:3, :3].T @ T_c_w[:3, 3])
+    for k in range(n):
+        p = idx[k]
+        T_w_h = inv_se3(kf_T_c_w[host[p]])
+        T_cur_ref = T_c_w @ T_w_h
+        ok, x, tau, uc, vc = _measure(params, kf_pyr[host[p]], u[p], v[p], level[p], f[p],
+                                      rho[p], sigma[p], T_cur_ref, pyr_off, pyr_w, pyr_h,
+                                      cur_flat, cx, cy, cxn, cyn, c_row_start, max_level, margin,
+                                      threshold, iterations, px_angle)
+        if not ok:
+            n_failed[p] += 1
+            delete[k] = n_failed[p] > max_failures
+            continue
+        m, s2, aa, bb = update_seed(rho[p], sigma[p] ** 2, a[p], b[p], x, tau * tau,
+                                    rho_range[p])
+        if m <= 0.0:
+            delete[k] = True
+            continue
+        rho[p], sigma[p], a[p], b[p] = m, np.sqrt(s2), aa, bb
+        n_failed[p] = 0
+        n_updates[p] += 1
+        found[k] = True
+        uv[k, 0], uv[k, 1] = uc, vc
+        pos_w[p] = T_w_h[:3, :3] @ (f[p] / m) + T_w_h[:3, 3]
+        if aa / (aa + bb) < min_inlier:
+            delete[k] = True
+            continue
+        ray_h = pos_w[p] - T_w_h[:3, 3]
+        ray_c = pos_w[p] - cam_pos
+        d = np.sqrt(ray_c @ ray_c)
+        cos_par = (ray_h @ ray_c) / (np.sqrt(ray_h @ ray_h) * d)
+        if linearity_index(m, np.sqrt(s2), d, cos_par) < conv_L:
+            status[p] = CONVERGED
+    return found, uv, delete
+
+
+@numba.njit(cache=True, nogil=True)
+def search_new(params, ref_flat, u, v, level, f, rho0, sigma0, T_cur_ref, pyr_off, pyr_w, pyr_h,
+               cur_flat, cx, cy, cxn, cyn, c_row_start, max_level, margin, threshold,
+               iterations, px_angle):
+    """Search new candidates of the reference keyframe in another keyframe; per candidate
+    (found, inverse-depth measurement, its std)."""
+    n = u.shape[0]
+    found = np.zeros(n, dtype=np.bool_)
+    x = np.zeros(n)
+    tau = np.zeros(n)
+    for k in range(n):
+        found[k], x[k], tau[k], _, _ = _measure(
+            params, ref_flat, u[k], v[k], level[k], f[k], rho0, sigma0, T_cur_ref, pyr_off,
+            pyr_w, pyr_h, cur_flat, cx, cy, cxn, cyn, c_row_start, max_level, margin, threshold,
+            iterations, px_angle)
+    return found, x, tau
+
+
+class Mapper:
+    """One mapping step per frame: update candidates, and on keyframes extend the map."""
+
+    def __init__(self, camera, config: TrackerConfig, map_: Map):
+        self.camera = camera
+        self.config = config
+        self.map = map_
+        self.px_angle = 2.0 * np.arctan(0.5 / np.sqrt(camera.fx * camera.fy))
+        self.n_keyframes_added = 0
+
+    def _search_args(self, frame: Frame):
+        c = frame.corners(self.config.fast_threshold)
+        pyr = frame.pyr
+        return (pyr.offsets, pyr.widths, pyr.heights, pyr.flat, c.x, c.y, c.xn, c.yn,
+                c.row_start, self.config.match_max_level, self.config.epipolar_margin_px,
+                self.config.zmssd_threshold, self.config.align2d_iterations, self.px_angle)
+
+    def step(self, frame: Frame, keyframe: bool) -> None:
+        """Process one tracked frame (and make it a keyframe when asked)."""
+        pts = self.map.points
+        with self.map.lock:
+            pts.step()
+        cand = np.flatnonzero(pts.status == CANDIDATE)
+        cand = cand[pts.host[cand] != frame.slot]
+        found_uv = np.zeros((0, 2))
+        if len(cand):
+            args = self._search_args(frame)
+            found, uv, delete = update_candidates(
+                self.camera.params, cand, pts.host, pts.u, pts.v, pts.level, pts.f, pts.rho,
+                pts.sigma, pts.a, pts.b, pts.rho_range, pts.n_failed, pts.n_updates,
+                pts.status, pts.pos_w, self.map.kf_pyr, self.map.kf_T_c_w, frame.T_c_w,
+                *args[:9], *args[9:], self.config.seed_max_failures,
+                self.config.min_inlier_probability, self.config.convergence_L)
+            with self.map.lock:
+                pts.delete(cand[delete])
+            found_uv = uv[found & ~delete]
+        if keyframe:
+            self.add_keyframe(frame, found_uv)
+
+    def add_keyframe(self, frame: Frame, occupied_uv: np.ndarray) -> None:
+        """Insert `frame` as a keyframe, seed candidates in its empty cells, cap keyframes."""
+        cfg = self.config
+        pts = self.map.points
+        with self.map.lock:
+            slot = self.map.add_keyframe(frame)
+        self.n_keyframes_added += 1
+        depths = self._scene_depths(frame)
+        if len(depths) == 0:
+            return
+        d_med, d_min = float(np.median(depths)), float(np.min(depths))
+        rho0 = 1.0 / d_med
+        sigma0 = cfg.seed_sigma_ratio * rho0
+        u, v, level = self._new_features(frame, np.vstack((frame.feat_px, occupied_uv)))
+        if len(u) == 0:
+            return
+        f = self.camera.unproject(np.column_stack((u, v)))
+        T_w_new = frame.T_w_c
+        rho = np.full(len(u), np.nan)
+        sigma = np.full(len(u), np.nan)
+        for other in self._search_keyframes(frame, slot):
+            todo = np.flatnonzero(np.isnan(rho))
+            if len(todo) == 0:
+                break
+            kf = self.map.keyframes[other]
+            T_cur_ref = kf.T_c_w @ T_w_new
+            found, x, tau = search_new(self.camera.params, frame.pyr.flat, u[todo], v[todo],
+                                       level[todo], f[todo], rho0, sigma0, T_cur_ref,
+                                       *self._search_args(kf))
+            for k in np.flatnonzero(found):
+                m, s2, _, _ = update_seed(rho0, sigma0 ** 2, cfg.seed_a, cfg.seed_b, x[k],
+                                          tau[k] ** 2, 1.0 / d_min)
+                if m > 0:
+                    rho[todo[k]], sigma[todo[k]] = m, np.sqrt(s2)
+        new = np.flatnonzero(np.isfinite(rho))
+        with self.map.lock:
+            pts.add(slot, u[new], v[new], level[new], f[new], rho[new], sigma[new],
+                    np.full(len(new), 1.0 / d_min), cfg.seed_a, cfg.seed_b, T_w_new)
+            self._cap_keyframes(frame)
+            if self.n_keyframes_added % 10 == 0:
+                self.map.prune_observations()
+
+    def _scene_depths(self, frame: Frame) -> np.ndarray:
+        pts = self.map.points
+        if len(frame.feat_point) == 0:
+            return np.zeros(0)
+        X = pts.pos_w[frame.feat_point] @ frame.T_c_w[:3, :3].T + frame.T_c_w[:3, 3]
+        return X[:, 2][X[:, 2] > 0]
+
+    def _search_keyframes(self, frame: Frame, slot: int) -> list[int]:
+        """Covisible keyframes (>= covisible_min_shared points), else the nearest one."""
+        slots = self.map.covisible(frame.feat_point, slot, self.config.covisible_min_shared)
+        if not slots:
+            others = [s for s in self.map.keyframes if s != slot]
+            if others:
+                slots = [min(others, key=lambda s: np.linalg.norm(
+                    self.map.keyframes[s].position - frame.position))]
+        return slots
+
+    def _new_features(self, frame: Frame, occupied_uv: np.ndarray):
+        """One corner per empty grid cell, the best Shi-Tomasi score over all levels."""
+        cfg = self.config
+        c = frame.corners(cfg.fast_threshold)
+        pyr = frame.pyr
+        score = shi_tomasi(pyr.flat, pyr.offsets, pyr.widths, pyr.heights, c.level, c.x, c.y)
+        s = 2.0 ** c.level
+        x, y = c.x * s, c.y * s
+        cols = (self.camera.width + cfg.grid_cell - 1) // cfg.grid_cell
+        rows = (self.camera.height + cfg.grid_cell - 1) // cfg.grid_cell
+        occupied = np.zeros(cols * rows, dtype=bool)
+        if len(occupied_uv):
+            oc = np.clip((occupied_uv // cfg.grid_cell).astype(np.int64), 0, [cols - 1, rows - 1])
+            occupied[oc[:, 1] * cols + oc[:, 0]] = True
+        margin = 2.0 ** c.level * 6
+        ok = (score > 0) & (x >= margin) & (y >= margin) & (x < self.camera.width - margin) & (
+            y < self.camera.height - margin)
+        cell = (y // cfg.grid_cell).astype(np.int64) * cols + (x // cfg.grid_cell).astype(np.int64)
+        ok &= ~occupied[np.clip(cell, 0, len(occupied) - 1)]
+        sel = np.flatnonzero(ok)
+        best = sel[best_per_cell(x[sel], y[sel], score[sel], cfg.grid_cell, self.camera.width)]
+        return x[best], y[best], c.level[best]
+
+    def _cap_keyframes(self, frame: Frame) -> None:
+        keep = {frame.slot}
+        while len(self.map) > self.config.max_keyframes:
+            slot = self.map.farthest_keyframe(frame.position, keep)
+            if slot is None:
+                break
+            self.map.remove_keyframe(slot)

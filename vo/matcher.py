@@ -1,0 +1,202 @@
+"""Point matching between a reference keyframe and another frame (thesis 6.5).
+
+`match_direct` refines a predicted position with an affine-warped patch (tracking, 6.7.2);
+`match_epipolar` searches FAST corners of several levels along the epipolar segment of the 95%
+inverse-depth interval, scores them by ZMSSD and refines the best one (mapping, 6.6.2-6.6.3).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from calib.camera import project_point, unproject_pixel
+from vo.patch import BORDER_PATCH, HALF, PATCH_AREA, align2d, inside, warp_patch, zmssd
+from vo.se3 import transform
+
+MIN_RHO = 1e-10
+
+
+@numba.njit(cache=True, nogil=True)
+def affine_cur_ref(params, T_cur_ref, f_ref, depth, u_ref, v_ref, ref_level):
+    """2x2 affine map from reference level-0 pixel offsets to current ones, for a fronto-parallel
+    patch at `depth` along bearing f_ref. NaN entries when the patch cannot be projected."""
+    A = np.full((2, 2), np.nan)
+    step = (HALF + 1) * 2.0 ** ref_level
+    xr, yr, zr = f_ref[0] * depth, f_ref[1] * depth, f_ref[2] * depth
+    X, Y, Z = transform(T_cur_ref, xr, yr, zr)
+    u0, v0 = project_point(params, X, Y, Z)
+    for k in range(2):
+        du = step if k == 0 else 0.0
+        dv = step if k == 1 else 0.0
+        bx, by, bz = unproject_pixel(params, u_ref + du, v_ref + dv)
+        s = zr / bz
+        X, Y, Z = transform(T_cur_ref, bx * s, by * s, bz * s)
+        u1, v1 = project_point(params, X, Y, Z)
+        A[0, k] = (u1 - u0) / step
+        A[1, k] = (v1 - v0) / step
+    return A
+
+
+@numba.njit(cache=True, nogil=True)
+def search_level(A, max_level):
+    """Pyramid level where the warped patch is closest to its reference size."""
+    det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+    level = 0
+    while det > 3.0 and level < max_level:
+        det *= 0.25
+        level += 1
+    return level
+
+
+@numba.njit(cache=True, nogil=True)
+def triangulate_depth(T_cur_ref, f_ref, f_cur):
+    """Depth along f_ref (reference frame) of the point closest to both rays; <= 0 if none."""
+    R = T_cur_ref[:3, :3]
+    t = T_cur_ref[:3, 3]
+    a = R @ f_ref
+    # minimise |d_ref * a + t - d_cur * f_cur|
+    aa = a @ a
+    ab = -(a @ f_cur)
+    bb = f_cur @ f_cur
+    det = aa * bb - ab * ab
+    if det < 1e-12:
+        return -1.0
+    ra = -(a @ t)
+    rb = f_cur @ t
+    return (bb * ra - ab * rb) / det
+
+
+@numba.njit(cache=True, nogil=True)
+def inverse_depth_sigma(T_cur_ref, f_ref, depth, px_angle):
+    """Std of the inverse depth caused by a `px_angle` error in the current observation."""
+    R = T_cur_ref[:3, :3]
+    t = -(R.T @ T_cur_ref[:3, 3])  # current camera centre in the reference frame
+    tn = np.sqrt(t @ t)
+    if tn < 1e-12:
+        return 1e10
+    a = f_ref * depth - t
+    an = np.sqrt(a @ a)
+    alpha = np.arccos(min(1.0, max(-1.0, (f_ref @ t) / tn)))
+    beta = np.arccos(min(1.0, max(-1.0, -(a @ t) / (tn * an))))
+    gamma = np.pi - alpha - (beta + px_angle)
+    if gamma <= 1e-9:
+        return 1e10
+    d_plus = tn * np.sin(beta + px_angle) / np.sin(gamma)
+    tau = d_plus - depth
+    return 0.5 * (1.0 / max(1e-7, depth - tau) - 1.0 / (depth + tau))
+
+
+@numba.njit(cache=True, nogil=True)
+def match_direct(params, ref_flat, ref_off, ref_w, ref_h, ref_u, ref_v, ref_level, f_ref, depth,
+                 T_cur_ref, cur_flat, cur_off, cur_w, cur_h, u, v, max_level, iterations):
+    """Refine the predicted level-0 pixel (u, v) of a point in the current frame.
+
+    Returns (u, v, level, ok) with (u, v) at level 0.
+    """
+    A = affine_cur_ref(params, T_cur_ref, f_ref, depth, ref_u, ref_v, ref_level)
+    if np.isnan(A[0, 0]) or np.isnan(A[1, 1]):
+        return u, v, 0, False
+    det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+    if abs(det) < 1e-6:
+        return u, v, 0, False
+    level = search_level(A, max_level)
+    A_ref_cur = np.linalg.inv(A)
+    patch = np.empty((BORDER_PATCH, BORDER_PATCH))
+    if not warp_patch(ref_flat, ref_off[ref_level], ref_w[ref_level], ref_h[ref_level],
+                      A_ref_cur, ref_u, ref_v, ref_level, level, patch):
+        return u, v, level, False
+    s = 2.0 ** level
+    ul, vl, ok = align2d(cur_flat, cur_off[level], cur_w[level], cur_h[level], patch,
+                         u / s, v / s, iterations)
+    return ul * s, vl * s, level, ok
+
+
+@numba.njit(cache=True, nogil=True)
+def _segment_distance(px, py, ax, ay, bx, by):
+    """Distance from (px, py) to the segment a-b."""
+    dx = bx - ax
+    dy = by - ay
+    L2 = dx * dx + dy * dy
+    s = 0.0 if L2 < 1e-20 else ((px - ax) * dx + (py - ay) * dy) / L2
+    s = min(1.0, max(0.0, s))
+    ex = ax + s * dx - px
+    ey = ay + s * dy - py
+    return np.sqrt(ex * ex + ey * ey)
+
+
+@numba.njit(cache=True, nogil=True)
+def match_epipolar(params, ref_flat, ref_off, ref_w, ref_h, ref_u, ref_v, ref_level, f_ref,
+                   rho, sigma, T_cur_ref, cur_flat, cur_off, cur_w, cur_h, cx, cy, cxn, cyn,
+                   c_row_start, max_level, margin_px, threshold, iterations):
+    """Search a point with inverse depth rho +- 2 sigma along its epipolar segment in the
+    current frame, among its FAST corners (cx, cy per level, normalised cxn, cyn) of levels
+    0..max_level. Returns (u, v, level, ok) at level 0."""
+    rho_far = max(rho - 2.0 * sigma, MIN_RHO)
+    rho_near = rho + 2.0 * sigma
+    # sample the segment to bound it in distorted pixels; endpoints in the normalised plane
+    n_samples = 9
+    umin, umax, vmin, vmax = 1e18, -1e18, 1e18, -1e18
+    ax = ay = bx = by = 0.0
+    for k in range(n_samples):
+        r = rho_near + (rho_far - rho_near) * k / (n_samples - 1)
+        X, Y, Z = transform(T_cur_ref, f_ref[0] / r, f_ref[1] / r, f_ref[2] / r)
+        if 1e-6 * (abs(X) + abs(Y) + Z + 1e-30) >= Z or Z <= 0.0:
+            return 0.0, 0.0, 0, False
+        if k == 0:
+            ax, ay = X / Z, Y / Z
+        bx, by = X / Z, Y / Z
+        u, v = project_point(params, X, Y, Z)
+        if np.isnan(u):
+            return 0.0, 0.0, 0, False
+        umin, umax = min(umin, u), max(umax, u)
+        vmin, vmax = min(vmin, v), max(vmax, v)
+    A = affine_cur_ref(params, T_cur_ref, f_ref, 1.0 / rho, ref_u, ref_v, ref_level)
+    if np.isnan(A[0, 0]) or np.isnan(A[1, 1]):
+        return 0.0, 0.0, 0, False
+    if abs(A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]) < 1e-6:
+        return 0.0, 0.0, 0, False
+    A_ref_cur = np.linalg.inv(A)
+    patch = np.empty((BORDER_PATCH, BORDER_PATCH))
+    best_patch = np.empty((BORDER_PATCH, BORDER_PATCH))
+    best = threshold * PATCH_AREA
+    best_x = best_y = 0.0
+    best_level = -1
+    focal = params[1]
+    for level in range(max_level + 1):
+        if not warp_patch(ref_flat, ref_off[ref_level], ref_w[ref_level], ref_h[ref_level],
+                          A_ref_cur, ref_u, ref_v, ref_level, level, patch):
+            continue
+        s = 2.0 ** level
+        m = margin_px * s
+        tol = m / focal
+        w = cur_w[level]
+        h = cur_h[level]
+        r0 = max(0, int((vmin - m) / s))
+        r1 = min(h - 1, int((vmax + m) / s) + 1)
+        lo_u = (umin - m) / s
+        hi_u = (umax + m) / s
+        for row in range(r0, r1 + 1):
+            for i in range(c_row_start[level, row], c_row_start[level, row + 1]):
+                x = cx[i]
+                if x < lo_u or x > hi_u:
+                    continue
+                y = cy[i]
+                if not inside(x, y, w, h, HALF + 1):
+                    continue
+                if _segment_distance(cxn[i], cyn[i], ax, ay, bx, by) > tol:
+                    continue
+                score = zmssd(patch, cur_flat, cur_off[level], w, int(x), int(y))
+                if score < best:
+                    best = score
+                    best_x, best_y, best_level = x, y, level
+                    best_patch[:, :] = patch
+    if best_level < 0:
+        return 0.0, 0.0, 0, False
+    lv = best_level
+    ul, vl, ok = align2d(cur_flat, cur_off[lv], cur_w[lv], cur_h[lv], best_patch, best_x, best_y,
+                         iterations)
+    s = 2.0 ** lv
+    if not ok or (ul - best_x) ** 2 + (vl - best_y) ** 2 > 4.0:
+        return best_x * s, best_y * s, lv, True
+    return ul * s, vl * s, lv, True

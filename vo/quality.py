@@ -1,0 +1,29 @@
+"""Tracking quality as in thesis 6.10, and the lost state after consecutive bad frames (6.9)."""
+
+from __future__ import annotations
+
+from vo.config import TrackerConfig
+
+
+def classify(n_matches: int, n_attempts: int, config: TrackerConfig) -> str:
+    """'good' when matched/attempted > ratio; 'bad' when not and matches < minimum; else
+    'insufficient'."""
+    ratio = n_matches / n_attempts if n_attempts > 0 else 0.0
+    if ratio > config.quality_min_ratio:
+        return "good"
+    if n_matches < config.quality_min_matches:
+        return "bad"
+    return "insufficient"
+
+
+class LostCounter:
+    """Counts consecutive bad frames; lost after `lost_after_bad` of them."""
+
+    def __init__(self, config: TrackerConfig):
+        self.limit = config.lost_after_bad
+        self.bad_run = 0
+
+    def update(self, quality: str) -> bool:
+        """Record one frame's quality; True when tracking is now lost."""
+        self.bad_run = self.bad_run + 1 if quality == "bad" else 0
+        return self.bad_run >= self.limit

@@ -1,0 +1,94 @@
+"""Rigid transforms as 4x4 float64 matrices; twists ordered (translation xyz, rotation xyz)."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True, nogil=True)
+def skew(w):
+    """The 3x3 cross-product matrix of w."""
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+@numba.njit(cache=True, nogil=True)
+def exp_se3(xi):
+    """The transform exp(xi) for a twist xi = (v, w)."""
+    v = xi[:3]
+    w = xi[3:]
+    theta = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    W = skew(w)
+    W2 = W @ W
+    if theta < 1e-8:
+        a, b, c = 1.0, 0.5, 1.0 / 6.0
+    else:
+        a = np.sin(theta) / theta
+        b = (1.0 - np.cos(theta)) / (theta * theta)
+        c = (theta - np.sin(theta)) / (theta * theta * theta)
+    T = np.eye(4)
+    T[:3, :3] = np.eye(3) + a * W + b * W2
+    T[:3, 3] = (np.eye(3) + b * W + c * W2) @ v
+    return T
+
+
+@numba.njit(cache=True, nogil=True)
+def inv_se3(T):
+    """The inverse of a rigid transform."""
+    out = np.eye(4)
+    R = T[:3, :3]
+    out[:3, :3] = R.T
+    out[:3, 3] = -(R.T @ T[:3, 3])
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def transform(T, X, Y, Z):
+    """T applied to one point."""
+    return (T[0, 0] * X + T[0, 1] * Y + T[0, 2] * Z + T[0, 3],
+            T[1, 0] * X + T[1, 1] * Y + T[1, 2] * Z + T[1, 3],
+            T[2, 0] * X + T[2, 1] * Y + T[2, 2] * Z + T[2, 3])
+
+
+@numba.njit(cache=True, nogil=True)
+def plane_jacobian(X, Y, Z, J):
+    """Fill J (2x6) with d(X/Z, Y/Z)/d(xi) for the left perturbation exp(xi) * T of the point."""
+    iz = 1.0 / Z
+    x = X * iz
+    y = Y * iz
+    J[0, 0] = iz
+    J[0, 1] = 0.0
+    J[0, 2] = -x * iz
+    J[0, 3] = -x * y
+    J[0, 4] = 1.0 + x * x
+    J[0, 5] = -y
+    J[1, 0] = 0.0
+    J[1, 1] = iz
+    J[1, 2] = -y * iz
+    J[1, 3] = -(1.0 + y * y)
+    J[1, 4] = x * y
+    J[1, 5] = x
+
+
+def adjoint(T: np.ndarray) -> np.ndarray:
+    """6x6 adjoint of T for twists (v, w): exp(Ad xi) T = T exp(xi)."""
+    R = T[:3, :3]
+    out = np.zeros((6, 6))
+    out[:3, :3] = R
+    out[:3, 3:] = skew(np.ascontiguousarray(T[:3, 3])) @ R
+    out[3:, 3:] = R
+    return out
+
+
+def rotation_angle_deg(R: np.ndarray) -> float:
+    """Angle of a rotation matrix in degrees."""
+    c = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.degrees(np.arccos(c)))
+
+
+def orthonormalized(T: np.ndarray) -> np.ndarray:
+    """T with its rotation block projected back onto SO(3) (removes round-off drift)."""
+    U, _, Vt = np.linalg.svd(T[:3, :3])
+    out = T.copy()
+    out[:3, :3] = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    return out

@@ -1,0 +1,119 @@
+"""Sparse direct image alignment (thesis 6.7.1): the pose of the new frame relative to the last
+one, from 4x4 patches around the last frame's matched points, inverse-compositional
+Gauss-Newton on SE(3), coarse to fine."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from calib.camera import project_point
+from vo.patch import inside, sample
+from vo.se3 import exp_se3, plane_jacobian, transform
+
+HALF4 = 2
+N4 = 16
+
+
+@numba.njit(cache=True, nogil=True)
+def reference_patches(flat, off, w, h, level, px, xyz, fx, fy):
+    """4x4 reference patches at `level` around level-0 pixels px (N, 2) of points xyz (N, 3) in
+    the reference camera, their photometric Jacobians (N, 16, 6) and a validity mask."""
+    n = px.shape[0]
+    s = 2.0 ** level
+    patches = np.zeros((n, N4))
+    jac = np.zeros((n, N4, 6))
+    valid = np.zeros(n, dtype=np.bool_)
+    Jp = np.zeros((2, 6))
+    for i in range(n):
+        u = px[i, 0] / s
+        v = px[i, 1] / s
+        if not inside(u, v, w, h, HALF4 + 2):
+            continue
+        valid[i] = True
+        plane_jacobian(xyz[i, 0], xyz[i, 1], xyz[i, 2], Jp)
+        k = 0
+        for r in range(-HALF4, HALF4):
+            for c in range(-HALF4, HALF4):
+                x = u + c
+                y = v + r
+                patches[i, k] = sample(flat, off, w, x, y)
+                gx = 0.5 * (sample(flat, off, w, x + 1.0, y) - sample(flat, off, w, x - 1.0, y))
+                gy = 0.5 * (sample(flat, off, w, x, y + 1.0) - sample(flat, off, w, x, y - 1.0))
+                for j in range(6):
+                    jac[i, k, j] = (gx * fx * Jp[0, j] + gy * fy * Jp[1, j]) / s
+                k += 1
+    return patches, jac, valid
+
+
+@numba.njit(cache=True, nogil=True)
+def _normal_equations(params, flat, off, w, h, level, patches, jac, valid, xyz, T_cur_ref):
+    """H, b, mean squared residual and pixel count of the photometric error at T_cur_ref."""
+    s = 2.0 ** level
+    H = np.zeros((6, 6))
+    b = np.zeros(6)
+    chi2 = 0.0
+    count = 0
+    for i in range(patches.shape[0]):
+        if not valid[i]:
+            continue
+        X, Y, Z = transform(T_cur_ref, xyz[i, 0], xyz[i, 1], xyz[i, 2])
+        u, v = project_point(params, X, Y, Z)
+        if np.isnan(u):
+            continue
+        u /= s
+        v /= s
+        if not inside(u, v, w, h, HALF4 + 1):
+            continue
+        k = 0
+        for r in range(-HALF4, HALF4):
+            for c in range(-HALF4, HALF4):
+                res = sample(flat, off, w, u + c, v + r) - patches[i, k]
+                for a in range(6):
+                    b[a] += jac[i, k, a] * res
+                    for q in range(a, 6):
+                        H[a, q] += jac[i, k, a] * jac[i, k, q]
+                chi2 += res * res
+                count += 1
+                k += 1
+    for a in range(6):
+        for q in range(a):
+            H[a, q] = H[q, a]
+    return H, b, chi2 / max(count, 1), count
+
+
+@numba.njit(cache=True, nogil=True)
+def align_level(params, flat, off, w, h, level, patches, jac, valid, xyz, T_cur_ref, iterations):
+    """Gauss-Newton at one level; returns the refined T_cur_ref and the pixel count used."""
+    T = T_cur_ref.copy()
+    H, b, chi2, count = _normal_equations(params, flat, off, w, h, level, patches, jac, valid,
+                                          xyz, T)
+    for _ in range(iterations):
+        if count < 6 * N4:
+            break
+        xi = np.linalg.solve(H + 1e-9 * np.eye(6), b)
+        T_new = T @ exp_se3(-xi)
+        H_new, b_new, chi2_new, count_new = _normal_equations(params, flat, off, w, h, level,
+                                                              patches, jac, valid, xyz, T_new)
+        if chi2_new > chi2 or count_new < 6 * N4:
+            break
+        T, H, b, chi2, count = T_new, H_new, b_new, chi2_new, count_new
+        if np.sqrt(xi @ xi) < 1e-10:
+            break
+    return T, count
+
+
+def align(params: np.ndarray, ref_pyr, cur_pyr, px_ref: np.ndarray, xyz_ref: np.ndarray,
+          T_cur_ref: np.ndarray, max_level: int, min_level: int, iterations: int) -> np.ndarray:
+    """T_cur_ref refined by aligning 4x4 patches around px_ref (level 0) of points xyz_ref (in
+    the reference camera) from the reference pyramid to the current one, levels max..min."""
+    T = np.ascontiguousarray(T_cur_ref, dtype=np.float64)
+    fx, fy = float(params[1]), float(params[2])
+    for level in range(max_level, min_level - 1, -1):
+        off, w, h = ref_pyr.offsets[level], ref_pyr.widths[level], ref_pyr.heights[level]
+        patches, jac, valid = reference_patches(ref_pyr.flat, off, w, h, level, px_ref, xyz_ref,
+                                                fx, fy)
+        T, _ = align_level(params, cur_pyr.flat, cur_pyr.offsets[level], cur_pyr.widths[level],
+                           cur_pyr.heights[level], level, patches, jac, valid, xyz_ref, T,
+                           iterations)
+    return T
