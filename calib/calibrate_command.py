@@ -39,6 +39,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "Calibrate a camera from images of a chessboard or ChArUco board and write the "
         "camera.yaml the tracker and the service read; or convert a calibration file "
         "(Kalibr, ROS, OpenCV, ORB-SLAM, original SDVL) with --convert.")
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.epilog = (
+        "examples:\n"
+        "  sdvl calibrate shots/*.jpg --cols 9 --rows 6 --square 0.025 --out camera.yaml\n"
+        "  sdvl calibrate --device 0 --board charuco --cols 8 --rows 6 --square 0.035 "
+        "--marker 0.026 --model fisheye\n"
+        "  sdvl calibrate --convert camchain.yaml --to sdvl --out camera.yaml")
     src = parser.add_argument_group("input (one of)")
     src.add_argument("images", nargs="*", metavar="IMAGE", help="board images (PNG, JPEG ...)")
     src.add_argument("--video", metavar="FILE", help="a video of the board being moved")
@@ -163,6 +170,9 @@ def run(args: argparse.Namespace) -> int:
     if args.convert:
         return _convert(args)
     spec = _spec(args)
+    if args.min_views < 3 or args.max_views < args.min_views:
+        raise InputError(f"need 3 <= --min-views <= --max-views, got {args.min_views} and "
+                         f"{args.max_views}")
     collected = _collect(args, spec)
     for name, reason in collected.skipped:
         _log(f"skipped {name}: {reason}")

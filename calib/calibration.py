@@ -85,6 +85,9 @@ def calibrate(views: list[View], size: tuple[int, int], model: str) -> Calibrati
     except cv2.error as exc:
         raise InputError(f"OpenCV could not calibrate from these views ({exc.err}); add views "
                          "with the board tilted and in different parts of the image") from None
+    if not (np.isfinite(K).all() and np.isfinite(dist).all() and K[0, 0] > 0 and K[1, 1] > 0):
+        raise InputError("calibration did not converge; add views with the board tilted and "
+                         "in different parts of the image")
     camera = CameraModel(width=size[0], height=size[1], fx=float(K[0, 0]), fy=float(K[1, 1]),
                          cx=float(K[0, 2]), cy=float(K[1, 2]), distortion_model=MODELS[model],
                          distortion=tuple(float(d) for d in dist))

@@ -79,3 +79,20 @@ def test_coverage_names_the_empty_areas():
 def test_thin_views_spreads_over_the_sequence():
     views = [View(str(i), detection()) for i in range(10)]
     assert [v.name for v in thin_views(views, 4)] == ["0", "3", "6", "9"]
+
+
+def test_live_collection_stops_at_enough_views_or_ctrl_c():
+    image = cv2.GaussianBlur(flat_board(), (0, 0), 0.7)
+
+    def stream(n_moves: int):
+        for k in range(n_moves):
+            moved = np.roll(image, 25 * k, axis=1)
+            yield f"f{k}a", moved
+            yield f"f{k}b", moved  # the board held still: not kept again
+        raise KeyboardInterrupt
+
+    detector = BoardDetector(SPEC, thorough=False)
+    out = collect_views(stream(4), detector, 5.0, gate=MotionGate(10.0), stop_after=3)
+    assert [v.name for v in out.views] == ["f0a", "f1a", "f2a"]
+    out = collect_views(stream(2), detector, 5.0, gate=MotionGate(10.0), stop_after=10)
+    assert [v.name for v in out.views] == ["f0a", "f1a"] and out.counts["board did not move"] == 2
