@@ -124,6 +124,8 @@ def _collect(args: argparse.Namespace, spec: BoardSpec) -> CollectedViews:
         raise InputError("give board images, or --video FILE, or --device N (exactly one); "
                          "or --convert FILE to convert a calibration file")
     if args.images:
+        if args.save_views:
+            raise InputError("--save-views is for --video and --device (images are files already)")
         return collect_views(image_files(args.images), BoardDetector(spec), args.max_blur)
     frames = video_frames(args.video) if args.video else device_frames(args.device)
     first = next(frames, None)
