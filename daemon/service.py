@@ -199,8 +199,8 @@ class Service:
     def _write(self, data: bytes) -> bool:
         return self.link.write(data)
 
-    def _send_text(self, severity: int, text: str) -> None:
-        self.codec.send(self.codec.mav.statustext_encode(severity, text.encode()))
+    def _send_text(self, severity: int, text: str) -> bool:
+        return self.codec.send(self.codec.mav.statustext_encode(severity, text.encode()))
 
     def _on_message(self, msg: object) -> None:
         now = time.monotonic()

@@ -12,9 +12,10 @@ MAX_TEXT = 50
 
 class StatusTexts:
     """`report(text)` sends when the text differs from the last one and the interval allows;
-    otherwise the newest pending text goes out at the next `flush` that is allowed."""
+    otherwise the newest pending text goes out at the next `flush` that is allowed. A text the
+    link could not take (not open yet) stays pending."""
 
-    def __init__(self, interval_s: float, send: Callable[[int, str], None]):
+    def __init__(self, interval_s: float, send: Callable[[int, str], bool]):
         self.interval_s = interval_s
         self.send = send
         self.last_text: str | None = None
@@ -38,7 +39,8 @@ class StatusTexts:
         if self.pending is None or now - self.last_time < self.interval_s:
             return
         severity, text = self.pending
-        self.pending = None
         if text != self.last_text:
-            self.send(severity, text)
+            if not self.send(severity, text):
+                return
             self.last_text, self.last_time = text, now
+        self.pending = None

@@ -46,7 +46,7 @@ class FakeTracker:
         self.closed = True
 
 
-def test_config(link: str, **sections: dict) -> Config:
+def service_config(link: str, **sections: dict) -> Config:
     """A service config for tests: test pattern camera, the given link."""
     base = replace(Config(), camera={"source": "testpattern", "width": 64, "height": 48},
                    mavlink={"link": link, "heartbeat_timeout_s": 0.6,

@@ -1,0 +1,70 @@
+"""Autopilot time -> our CLOCK_MONOTONIC seconds.
+
+The offset (ours minus the autopilot's boot time) comes from TIMESYNC when the service measures
+it (`set_offset`); until then it is estimated like ArduPilot's jitter correction does: the
+smallest (arrival - remote stamp) over a sliding window belongs to the least delayed message, so
+it is the true offset plus only the smallest transport latency. A stamp that disagrees with the
+estimate by more than a second is dropped (a corrupt or very late message); several in a row
+mean the autopilot's clock changed (a reboot) and restart the estimate. Stamps in UNIX time
+(some time_usec fields) get their own offset.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+UNIX_EPOCH_THRESHOLD_S = 1e9  # no autopilot has been up for 31 years: such stamps are UNIX time
+JUMP_S = 1.0
+STRIKES_TO_RESTART = 5
+MAX_AHEAD_S = 0.05  # a stamp mapped this far after its own arrival is wrong
+
+
+class _Domain:
+    """Offset estimate for one remote clock."""
+
+    def __init__(self, window_s: float):
+        self.window_s = window_s
+        self.samples: deque[tuple[float, float]] = deque()  # (arrival, arrival - remote)
+        self.strikes = 0
+
+    def observe(self, remote: float, arrival: float) -> bool:
+        delay = arrival - remote
+        current = self.offset()
+        if current is not None and abs(delay - current) > JUMP_S:
+            self.strikes += 1
+            if self.strikes < STRIKES_TO_RESTART:
+                return False
+            self.samples.clear()
+        self.strikes = 0
+        self.samples.append((arrival, delay))
+        while self.samples[0][0] < arrival - self.window_s:
+            self.samples.popleft()
+        return True
+
+    def offset(self) -> float | None:
+        return min(d for _, d in self.samples) if self.samples else None
+
+
+class ClockMap:
+    """Maps autopilot stamps (seconds) to our monotonic seconds."""
+
+    def __init__(self, window_s: float = 10.0):
+        self._boot = _Domain(window_s)
+        self._unix = _Domain(window_s)
+        self._timesync_offset: float | None = None
+
+    def set_offset(self, offset_s: float | None) -> None:
+        """Use a TIMESYNC-measured offset (ours - autopilot boot time, seconds) for boot-time
+        stamps; None returns to the arrival-time estimate."""
+        self._timesync_offset = offset_s
+
+    def to_local(self, remote: float, arrival: float) -> float | None:
+        """Our monotonic time of a message stamped `remote` that arrived at our `arrival`;
+        None when the stamp cannot be right."""
+        domain = self._unix if remote > UNIX_EPOCH_THRESHOLD_S else self._boot
+        consistent = domain.observe(remote, arrival)
+        if domain is self._boot and self._timesync_offset is not None:
+            local = remote + self._timesync_offset
+            ok = arrival - JUMP_S <= local <= arrival + MAX_AHEAD_S
+            return local if ok else None
+        return remote + domain.offset() if consistent else None

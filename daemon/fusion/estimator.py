@@ -1,0 +1,243 @@
+"""FusionEstimator: the EKF behind the daemon's Estimator seam (daemon/estimate.py).
+
+Autopilot messages are queued as they arrive (asyncio thread) with their arrival time; each
+tracker frame (tracking thread) maps their stamps to our clock, applies everything up to the
+frame's capture time in time order (replaying the filter for late ones), fuses the frame and
+returns an estimate once scale and heading have converged.
+
+Local frame: NED with the origin at the vehicle's position at the first tracked frame; heading
+from the autopilot's attitude (compass), so it agrees with the autopilot's own yaw.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from daemon.config import MavlinkConfig, MountingConfig
+from daemon.estimate import VisionEstimate
+from daemon.fusion import measurements as m
+from daemon.fusion.alignment import AlignmentGate
+from daemon.fusion.attitude import AttitudeTrack
+from daemon.fusion.clock import ClockMap
+from daemon.fusion.config import FusionConfig
+from daemon.fusion.output import build_estimate, inflation
+from daemon.fusion.sensors import IMU_PRIORITY, Attitude, Baro, Imu, Range, parse
+from daemon.fusion.state import LOG_SCALE, NavFilter
+from daemon.fusion.timeline import Event, Timeline
+from daemon.mounting import body_from_camera
+
+log = logging.getLogger("sdvl.fusion")
+INBOX_LIMIT = 20_000
+START_VELOCITY_STD = 0.5  # m/s: the vehicle is about still when tracking starts
+TRACKED = ("good", "insufficient", "bad")
+
+
+@dataclass(frozen=True)
+class FrameInput:
+    """What the filter uses of a tracker frame."""
+
+    p_w: np.ndarray  # camera position in the tracker's world
+    R_w_b: np.ndarray  # body attitude in the tracker's world
+    pos_cov: np.ndarray  # 3x3, tracker units
+    rot_cov: np.ndarray  # 3x3, rad^2, tracker world frame
+    quality: str
+    segment: int
+
+
+def _frame_input(result: object, R_c_b: np.ndarray, segment: int) -> FrameInput | None:
+    """The tracker pose as filter input; None when it has no usable pose."""
+    if not result.has_pose or result.quality not in TRACKED:
+        return None
+    T = np.asarray(result.T_w_c, dtype=np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        return None
+    cov = np.zeros((6, 6))
+    if result.covariance is not None:
+        given = np.asarray(result.covariance, dtype=np.float64)
+        if given.shape == (6, 6) and np.all(np.isfinite(given)):
+            cov = 0.5 * (given + given.T)
+    return FrameInput(T[:3, 3].copy(), T[:3, :3] @ R_c_b, cov[:3, :3], cov[3:, 3:],
+                      result.quality, segment)
+
+
+class FusionEstimator:
+    """Scale, gravity, heading and velocity for the tracker's poses; see the module doc."""
+
+    def __init__(self, cfg: FusionConfig, mounting: MountingConfig, link: MavlinkConfig,
+                 report: Callable[[str], None] | None = None,
+                 now: Callable[[], float] = time.monotonic):
+        cfg.check()
+        self.cfg = cfg
+        self.R_c_b = body_from_camera(mounting).T
+        self.floor = np.array([link.position_std_m] * 3 + [link.angle_std_rad] * 3) ** 2
+        self.now = now
+        self.reset_counter = 0
+        self.filter = NavFilter(cfg)
+        self.gate = AlignmentGate(cfg, report)
+        self.attitude = AttitudeTrack(cfg.attitude_timeout_s, cfg.history_s + 2.0)
+        self.clock = ClockMap(cfg.clock_offset_window_s)
+        self.timeline = Timeline(cfg.history_s)
+        self.imu_source: str | None = None
+        self.dropped_stamps = 0
+        self._inbox: deque[tuple[float, object]] = deque(maxlen=INBOX_LIMIT)
+        self._lock = threading.Lock()
+        self._segment = 0
+        self._had_segment = False
+        self._realigns_seen = 0
+        self._last_frame_t = float("-inf")
+
+    # --- the Estimator protocol ---------------------------------------------------------------
+
+    def on_autopilot_message(self, msg: object) -> None:
+        """Queue a message with its arrival time; the tracking thread fuses it."""
+        with self._lock:
+            self._inbox.append((self.now(), msg))
+
+    def set_clock_offset(self, offset_s: float | None) -> None:
+        """Our monotonic time minus the autopilot's boot time, from TIMESYNC (seconds)."""
+        with self._lock:
+            self.clock.set_offset(offset_s)
+
+    def on_frame(self, result: object, t_capture: float) -> VisionEstimate | None:
+        """Fuse one tracker FrameResult captured at `t_capture` (our monotonic seconds)."""
+        self._drain()
+        if result.new_segment and self._had_segment:
+            self._segment += 1
+            self._bump_reset_counter()
+        frame = _frame_input(result, self.R_c_b, self._segment)
+        if not np.isfinite(t_capture) or t_capture <= self._last_frame_t:
+            return None
+        self._last_frame_t = t_capture
+        if frame is not None:
+            self._had_segment = True
+            self.timeline.add(t_capture, "frame", frame)
+        f = self.filter
+        self.timeline.run(t_capture, f.t, self._apply, f.restore, f.snapshot)
+        if f.realigns != self._realigns_seen:
+            self._realigns_seen = f.realigns
+            self._bump_reset_counter()
+        if frame is None or f.t != t_capture or f.segment != frame.segment:
+            return None
+        if not self.gate.update(f, t_capture):
+            return None
+        att = self.attitude.at(t_capture)
+        return build_estimate(
+            f, self.cfg, R_w_b=frame.R_w_b, rot_cov_w=frame.rot_cov,
+            rates=att.rates if att is not None else np.zeros(3), t_capture=t_capture,
+            t_source=float(result.t), state=result.quality, reset_counter=self.reset_counter,
+            floor=self.floor)
+
+    # --- inputs -------------------------------------------------------------------------------
+
+    def _bump_reset_counter(self) -> None:
+        self.reset_counter = (self.reset_counter + 1) % 256
+        self.gate.restart()
+        log.info("fusion: discontinuity, reset_counter %d", self.reset_counter)
+
+    def _drain(self) -> None:
+        """Autopilot messages -> attitude track and timeline events on our clock."""
+        with self._lock:
+            items = list(self._inbox)
+            self._inbox.clear()
+            for arrival, msg in items:
+                self._ingest(arrival, msg)
+
+    def _ingest(self, arrival: float, msg: object) -> None:
+        parsed = parse(msg)
+        if parsed is None:
+            return
+        remote, samples = parsed
+        t = self.clock.to_local(remote, arrival)
+        if t is None:
+            self.dropped_stamps += 1
+            return
+        for sample in samples:
+            sample = dataclasses.replace(sample, t=t)
+            if isinstance(sample, Attitude):
+                self.attitude.add(sample)
+            elif isinstance(sample, Imu):
+                self._add_imu(sample)
+            elif isinstance(sample, Range) and self.cfg.use_rangefinder:
+                self.timeline.add(t, "range", sample)
+            elif isinstance(sample, Baro) and self.cfg.use_baro:
+                self.timeline.add(t, "baro", sample)
+
+    def _add_imu(self, sample: Imu) -> None:
+        """Keep one IMU stream: the best kind seen (HIGHRES over SCALED over RAW)."""
+        if not self.cfg.use_imu:
+            return
+        rank = IMU_PRIORITY[sample.source]
+        if self.imu_source is None or rank < IMU_PRIORITY[self.imu_source]:
+            self.imu_source = sample.source
+            log.info("fusion: IMU from %s", sample.source)
+        if sample.source == self.imu_source:
+            self.timeline.add(sample.t, "imu", sample)
+
+    # --- the filter ---------------------------------------------------------------------------
+
+    def _apply(self, event: Event) -> None:
+        f = self.filter
+        if event.kind == "frame":
+            self._apply_frame(event.t, event.data)
+            return
+        if f.t is None:
+            return
+        self._propagate(event.t)
+        if event.kind == "imu":
+            f.accel, f.t_accel = event.data.accel, event.t
+        elif event.kind == "range":
+            att = self.attitude.at(event.t)
+            if att is not None:
+                m.update_range(f, event.data.distance, att.R_n_b)
+        elif event.kind == "baro":
+            m.update_baro(f, event.data.altitude)
+
+    def _propagate(self, t: float) -> None:
+        f = self.filter
+        fresh = f.accel is not None and t - f.t_accel <= self.cfg.imu_timeout_s
+        att = self.attitude.at(f.t) if fresh else None
+        f.predict(t, f.accel if att is not None else None,
+                  att.R_n_b if att is not None else None)
+
+    def _apply_frame(self, t: float, frame: FrameInput) -> None:
+        f = self.filter
+        att = self.attitude.at(t)
+        if f.t is None:
+            if att is None:
+                self.gate.waiting("waiting for the autopilot's ATTITUDE", t)
+                return
+            f.start(t, START_VELOCITY_STD)
+        self._propagate(t)
+        if f.segment != frame.segment:
+            if att is None:
+                return
+            scale = f.x[LOG_SCALE] if f.segment >= 0 else np.log(self.cfg.initial_scale)
+            f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, scale)
+            f.segment = frame.segment
+            return
+        factor = inflation(self.cfg, frame.quality)
+        R_n_b = f.R_nom @ frame.R_w_b
+        if att is not None:
+            m.update_alignment(f, att.R_n_b, frame.R_w_b, self._alignment_noise(f, frame))
+        m.update_vo(f, frame.p_w, frame.pos_cov, R_n_b, factor)
+        if f.rejections["vo"] >= self.cfg.reset_after_rejections and att is not None:
+            f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, f.x[LOG_SCALE])
+            f.rejections["vo"] = 0
+            f.realigns += 1
+
+    def _alignment_noise(self, f: NavFilter, frame: FrameInput) -> np.ndarray:
+        """Covariance of the autopilot-vs-tracker rotation: attitude and compass noise plus the
+        tracker's rotation uncertainty (rad^2, N frame)."""
+        cfg = self.cfg
+        tilt, heading, vo = np.radians([cfg.attitude_std_deg, cfg.heading_std_deg,
+                                        cfg.vo_rotation_std_deg])
+        cov = np.diag([tilt**2, tilt**2, heading**2]) + np.eye(3) * vo**2
+        return cov + f.R_nom @ frame.rot_cov @ f.R_nom.T

@@ -1,0 +1,114 @@
+"""Measurement updates of the navigation filter, each gated by its innovation's chi-square.
+
+A gated-out measurement changes nothing. Range and baro readings that keep failing the gate
+(new terrain under the vehicle, a baro step) re-reference their offset state instead.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from daemon.fusion.state import (
+    ANCHOR,
+    BARO,
+    DIM,
+    GROUND,
+    LOG_SCALE,
+    POS,
+    THETA,
+    NavFilter,
+    matrix_to_rotvec,
+    rotvec_to_matrix,
+    skew,
+)
+
+
+def gated_update(f: NavFilter, z: np.ndarray, h: np.ndarray, H: np.ndarray, R: np.ndarray,
+                 gate: float) -> bool:
+    """One EKF update with measurement z, prediction h, Jacobian H and noise R; False (and no
+    change) when the innovation fails the chi-square gate or the result is not finite."""
+    S = H @ f.P @ H.T + R
+    y = z - h
+    try:
+        d2 = float(y @ np.linalg.solve(S, y))
+    except np.linalg.LinAlgError:
+        return False
+    if not np.isfinite(d2) or d2 > gate:
+        return False
+    x0, P0 = f.x.copy(), f.P.copy()
+    f.ekf.update(z, lambda _x: H, lambda _x: h, R=R)
+    f.ekf.P = 0.5 * (f.ekf.P + f.ekf.P.T)
+    if not (np.all(np.isfinite(f.ekf.x)) and np.all(np.isfinite(f.ekf.P))):
+        f.ekf.x, f.ekf.P = x0, P0
+        return False
+    return True
+
+
+def fold_alignment(f: NavFilter) -> None:
+    """Move the estimated small rotation theta into the nominal alignment R_nom."""
+    f.R_nom = rotvec_to_matrix(f.x[THETA]) @ f.R_nom
+    f.ekf.x[THETA] = 0.0
+
+
+def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarray,
+              inflation: float) -> bool:
+    """The tracker's camera position (its world frame and units), covariance `cov_w`."""
+    x = f.x
+    s_inv = float(np.exp(-x[LOG_SCALE]))
+    R_w_n = f.R_nom.T
+    u = x[POS] + R_n_b @ f.lever - x[ANCHOR]
+    h = f.p_w0 + s_inv * (R_w_n @ u)
+    H = np.zeros((3, DIM))
+    H[:, POS] = s_inv * R_w_n
+    H[:, ANCHOR] = -s_inv * R_w_n
+    H[:, LOG_SCALE] = -h + f.p_w0
+    H[:, THETA] = s_inv * R_w_n @ skew(u)
+    floor = (f.cfg.vo_position_std_m * s_inv) ** 2
+    R = inflation * (cov_w + floor * np.eye(3))
+    ok = gated_update(f, np.asarray(p_w, float), h, H, R, f.cfg.gate_chi2_3dof)
+    fold_alignment(f)
+    f.rejections["vo"] = 0 if ok else f.rejections["vo"] + 1
+    return ok
+
+
+def update_alignment(f: NavFilter, R_n_b_autopilot: np.ndarray, R_w_b: np.ndarray,
+                     cov: np.ndarray) -> bool:
+    """The autopilot's attitude against the tracker's: a direct look at R_N_w (gravity and
+    heading of the tracker's world)."""
+    z = matrix_to_rotvec(R_n_b_autopilot @ R_w_b.T @ f.R_nom.T)
+    H = np.zeros((3, DIM))
+    H[:, THETA] = np.eye(3)
+    ok = gated_update(f, z, f.x[THETA].copy(), H, cov, f.cfg.gate_chi2_3dof)
+    fold_alignment(f)
+    return ok
+
+
+def _scalar_update(f: NavFilter, which: str, z: float, index: int, std: float) -> bool:
+    """z = x[index] - p_z (+ noise): the shared form of the range and baro models."""
+    if not (f.has_ground if which == "range" else f.has_baro):
+        f.reference(which, z, std)
+        return True
+    H = np.zeros((1, DIM))
+    H[0, index] = 1.0
+    H[0, 2] = -1.0
+    h = np.array([f.x[index] - f.x[2]])
+    ok = gated_update(f, np.array([z]), h, H, np.array([[std**2]]), f.cfg.gate_chi2_1dof)
+    f.rejections[which] = 0 if ok else f.rejections[which] + 1
+    if f.rejections[which] >= f.cfg.reset_after_rejections:
+        f.reference(which, z, std)
+    return ok
+
+
+def update_range(f: NavFilter, distance: float, R_n_b: np.ndarray) -> bool:
+    """Downward rangefinder: vertical distance to the ground = ground level - p_z."""
+    cos_tilt = float(R_n_b[2, 2])
+    if cos_tilt < np.cos(np.radians(f.cfg.range_max_tilt_deg)):
+        return False
+    std = (f.cfg.range_std_m + f.cfg.range_std_fraction * distance) * cos_tilt
+    return _scalar_update(f, "range", distance * cos_tilt, GROUND, std)
+
+
+def update_baro(f: NavFilter, altitude: float) -> bool:
+    """Barometric altitude = baro offset - p_z."""
+    return _scalar_update(f, "baro", altitude, BARO, f.cfg.baro_std_m)
+

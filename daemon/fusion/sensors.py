@@ -1,0 +1,151 @@
+"""Autopilot MAVLink messages turned into sensor samples in SI units on the autopilot's clock.
+
+What ArduPilot and PX4 stream and in which units:
+- HIGHRES_IMU (PX4): time_usec, acceleration m/s^2, rates rad/s, abs_pressure hPa
+  (fields_updated bit 9 says the pressure is new).
+- SCALED_IMU (both): time_boot_ms, acceleration mG, rates mrad/s.
+- RAW_IMU (ArduPilot's default stream): time_usec; on ArduPilot the same units as SCALED_IMU.
+- ATTITUDE: time_boot_ms, roll/pitch/yaw rad (yaw from the compass), body rates rad/s.
+- DISTANCE_SENSOR: time_boot_ms, current/min/max_distance cm, orientation
+  (MAV_SENSOR_ROTATION_PITCH_270 = 25 points down).
+- SCALED_PRESSURE: time_boot_ms, press_abs hPa.
+Accelerations are specific force in body FRD (about -9.81 m/s^2 on z at rest).
+Anything not finite or out of its sensor's range is dropped here, so the filter never sees it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink2
+
+from daemon.mounting import rotation_zyx
+
+GRAVITY = 9.80665
+MG = GRAVITY / 1000.0
+DOWNWARD = mavlink2.MAV_SENSOR_ROTATION_PITCH_270
+HIGHRES_ACCEL_BITS = 0b111
+HIGHRES_PRESSURE_BIT = 1 << 9
+IMU_PRIORITY = {"HIGHRES_IMU": 0, "SCALED_IMU": 1, "RAW_IMU": 2}
+MAX_SPECIFIC_FORCE = 16 * GRAVITY  # beyond any accelerometer's range: a corrupt sample
+MIN_PRESSURE_HPA, MAX_PRESSURE_HPA = 100.0, 1200.0
+
+
+@dataclass(frozen=True)
+class Imu:
+    """Specific force in body FRD, m/s^2."""
+
+    t: float
+    accel: np.ndarray
+    source: str
+
+
+@dataclass(frozen=True)
+class Attitude:
+    """The autopilot's attitude: R_N_b (body FRD to NED) and body rates."""
+
+    t: float
+    R_n_b: np.ndarray
+    rates: np.ndarray
+
+
+@dataclass(frozen=True)
+class Range:
+    """Distance along the body's down axis to the ground, metres."""
+
+    t: float
+    distance: float
+
+
+@dataclass(frozen=True)
+class Baro:
+    """Pressure altitude (up positive), metres, from the standard atmosphere."""
+
+    t: float
+    altitude: float
+
+
+Sample = Imu | Attitude | Range | Baro
+
+
+def pressure_altitude(hpa: float) -> float:
+    """Standard-atmosphere altitude of a static pressure, metres."""
+    return 44330.77 * (1.0 - (hpa / 1013.25) ** 0.190263)
+
+
+def remote_time(msg: object) -> float | None:
+    """The message's own timestamp in seconds on the autopilot's clock, if it has one."""
+    if hasattr(msg, "time_usec"):
+        return msg.time_usec * 1e-6
+    if hasattr(msg, "time_boot_ms"):
+        return msg.time_boot_ms * 1e-3
+    return None
+
+
+def _finite(*values: float) -> bool:
+    return all(math.isfinite(v) for v in values)
+
+
+def _imu(t: float, accel: np.ndarray, source: str) -> Imu | None:
+    if not np.all(np.isfinite(accel)) or np.linalg.norm(accel) > MAX_SPECIFIC_FORCE:
+        return None
+    return Imu(t, accel, source)
+
+
+def _highres(msg: object, t: float) -> list[Sample]:
+    out: list[Sample] = []
+    if msg.fields_updated & HIGHRES_ACCEL_BITS:
+        imu = _imu(t, np.array([msg.xacc, msg.yacc, msg.zacc], float), "HIGHRES_IMU")
+        out += [imu] if imu else []
+    if msg.fields_updated & HIGHRES_PRESSURE_BIT:
+        out += _baro(t, msg.abs_pressure)
+    return out
+
+
+def _scaled_imu(msg: object, t: float) -> list[Sample]:
+    imu = _imu(t, np.array([msg.xacc, msg.yacc, msg.zacc], float) * MG, msg.get_type())
+    return [imu] if imu else []
+
+
+def _attitude(msg: object, t: float) -> list[Sample]:
+    angles = (msg.roll, msg.pitch, msg.yaw, msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+    if not _finite(*angles) or max(abs(a) for a in angles[:3]) > 2 * math.pi:
+        return []
+    rates = np.array(angles[3:], float)
+    return [Attitude(t, rotation_zyx(msg.roll, msg.pitch, msg.yaw), rates)]
+
+
+def _distance(msg: object, t: float) -> list[Sample]:
+    if msg.orientation != DOWNWARD:
+        return []
+    if not msg.min_distance <= msg.current_distance <= msg.max_distance:
+        return []  # out of range readings are reported as min or max; neither is a measurement
+    if msg.current_distance <= 0:
+        return []
+    return [Range(t, msg.current_distance / 100.0)]
+
+
+def _baro(t: float, hpa: float) -> list[Sample]:
+    if not _finite(hpa) or not MIN_PRESSURE_HPA <= hpa <= MAX_PRESSURE_HPA:
+        return []
+    return [Baro(t, pressure_altitude(hpa))]
+
+
+def _pressure(msg: object, t: float) -> list[Sample]:
+    return _baro(t, msg.press_abs)
+
+
+PARSERS = {"HIGHRES_IMU": _highres, "SCALED_IMU": _scaled_imu, "RAW_IMU": _scaled_imu,
+           "ATTITUDE": _attitude, "DISTANCE_SENSOR": _distance, "SCALED_PRESSURE": _pressure}
+
+
+def parse(msg: object) -> tuple[float, list[Sample]] | None:
+    """(autopilot time, samples) of a message fusion uses; None for any other message.
+    Sample times are left on the autopilot's clock; the caller maps them to ours."""
+    parser = PARSERS.get(msg.get_type())
+    t = remote_time(msg) if parser else None
+    if t is None or not math.isfinite(t):
+        return None
+    return t, parser(msg, t)

@@ -1,0 +1,185 @@
+"""The navigation filter: an error-state-style EKF on filterpy's ExtendedKalmanFilter.
+
+State (NED local frame N, metres): vehicle position p and velocity v, accelerometer bias b_a
+(body), the camera position a at the anchor of the current map segment, ln(scale), a small
+rotation theta that corrects the nominal alignment R_N_w (tracker world -> N), the ground level
+under the rangefinder and the barometer's offset.
+
+The tracker sees the camera at p_w = p_w0 + exp(-ln_s) R_w_N (p + R_N_b o - a), with p_w0 its
+own position at the anchor and o the camera's lever arm: this is the similarity between the
+tracker's world and NED, with the anchor cloned from the vehicle position when a segment starts
+(so a new map keeps the vehicle where it was). theta is folded into R_nom after every update.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from filterpy.kalman import ExtendedKalmanFilter
+from scipy.spatial.transform import Rotation
+
+from daemon.fusion.config import FusionConfig
+
+POS, VEL, BIAS, ANCHOR, THETA = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12),
+                                 slice(13, 16))
+LOG_SCALE, GROUND, BARO = 12, 16, 17
+DIM = 18
+GRAVITY_N = np.array([0.0, 0.0, 9.80665])
+HEADING = 15  # theta's z component: rotation about N's down axis
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """[v]x, the cross-product matrix."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def rotvec_to_matrix(v: np.ndarray) -> np.ndarray:
+    """exp([v]x)."""
+    return Rotation.from_rotvec(v).as_matrix()
+
+
+def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
+    """log(R) as a rotation vector."""
+    return Rotation.from_matrix(R).as_rotvec()
+
+
+class NavFilter:
+    """State, covariance and the nominal quantities around which the EKF is linearised."""
+
+    def __init__(self, cfg: FusionConfig):
+        self.cfg = cfg
+        self.ekf = ExtendedKalmanFilter(dim_x=DIM, dim_z=3)
+        self.ekf.x = np.zeros(DIM)
+        self.ekf.P = np.eye(DIM)
+        self.t: float | None = None
+        self.R_nom = np.eye(3)  # R_N_w
+        self.p_w0 = np.zeros(3)
+        self.has_ground = False
+        self.has_baro = False
+        self.segment = -1  # id of the map segment the anchor belongs to
+        self.realigns = 0  # segments restarted because the tracker's poses stopped fitting
+        self.accel: np.ndarray | None = None  # last IMU specific force, held until the next
+        self.t_accel = float("-inf")
+        self.rejections = {"range": 0, "baro": 0, "vo": 0}
+        self.lever = np.array([cfg.camera_x_m, cfg.camera_y_m, cfg.camera_z_m])
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.ekf.x
+
+    @property
+    def P(self) -> np.ndarray:
+        return self.ekf.P
+
+    @property
+    def scale(self) -> float:
+        return float(np.exp(self.x[LOG_SCALE]))
+
+    def snapshot(self) -> tuple:
+        """Everything needed to continue the filter from here."""
+        return (self.t, self.x.copy(), self.P.copy(), self.R_nom.copy(), self.p_w0.copy(),
+                self.has_ground, self.has_baro, dict(self.rejections), self.segment,
+                self.accel, self.t_accel, self.realigns)
+
+    def restore(self, snap: tuple) -> None:
+        """Go back to a snapshot."""
+        (self.t, x, P, R_nom, p_w0, self.has_ground, self.has_baro, rejections, self.segment,
+         self.accel, self.t_accel, self.realigns) = snap
+        self.ekf.x, self.ekf.P = x.copy(), P.copy()
+        self.R_nom, self.p_w0, self.rejections = R_nom.copy(), p_w0.copy(), dict(rejections)
+
+    # --- initialisation -----------------------------------------------------------------------
+
+    def start(self, t: float, velocity_std: float) -> None:
+        """First use: vehicle at the origin of N, at rest within `velocity_std`."""
+        cfg = self.cfg
+        self.t = t
+        self.ekf.x = np.zeros(DIM)
+        self.ekf.x[LOG_SCALE] = np.log(cfg.initial_scale)
+        var = np.zeros(DIM)
+        var[POS] = 1e-6
+        var[VEL] = velocity_std**2
+        var[BIAS] = cfg.accel_bias_std**2
+        var[ANCHOR] = 1e-6
+        var[LOG_SCALE] = cfg.scale_prior_std**2
+        var[THETA] = 1.0
+        var[GROUND] = var[BARO] = 1.0
+        self.ekf.P = np.diag(var)
+
+    def start_segment(self, p_w: np.ndarray, R_w_b: np.ndarray, R_n_b: np.ndarray,
+                      log_scale: float) -> None:
+        """A new map: clone the camera position as the anchor, fresh scale and alignment."""
+        x, P = self.ekf.x, self.ekf.P
+        x[ANCHOR] = x[POS] + R_n_b @ self.lever
+        P[ANCHOR, :] = P[POS, :]
+        P[:, ANCHOR] = P[:, POS]
+        P[ANCHOR, ANCHOR] = P[POS, POS]
+        x[LOG_SCALE] = log_scale
+        x[THETA] = 0.0
+        for index, std in ((LOG_SCALE, self.cfg.scale_prior_std),
+                           (THETA, np.radians(self.cfg.attitude_std_deg)),
+                           (HEADING, np.radians(self.cfg.heading_std_deg))):
+            P[index, :] = 0.0
+            P[:, index] = 0.0
+            if isinstance(index, slice):
+                P[index, index] = np.eye(3) * std**2
+            else:
+                P[index, index] = std**2
+        self.R_nom = R_n_b @ R_w_b.T
+        self.p_w0 = np.asarray(p_w, float).copy()
+
+    def reference(self, which: str, value: float, std: float) -> None:
+        """(Re)start the ground level ("range") or baro offset ("baro") so that the measured
+        `value` (vertical distance to the ground, or altitude) fits the current height:
+        both are value + p_z, with p_z's uncertainty plus the measurement's."""
+        index = GROUND if which == "range" else BARO
+        x, P = self.ekf.x, self.ekf.P
+        x[index] = value + x[2]
+        P[index, :] = P[2, :]
+        P[:, index] = P[:, 2]
+        P[index, index] = P[2, 2] + std**2
+        setattr(self, "has_ground" if which == "range" else "has_baro", True)
+        self.rejections[which] = 0
+
+    # --- prediction ---------------------------------------------------------------------------
+
+    def predict(self, t: float, accel: np.ndarray | None, R_n_b: np.ndarray | None) -> None:
+        """Propagate to time t: with the IMU's specific force (held since its sample) and the
+        attitude when both are given, else with a constant-velocity model."""
+        dt = t - self.t
+        if dt <= 0:
+            return
+        cfg = self.cfg
+        x = self.ekf.x
+        F = np.eye(DIM)
+        F[POS, VEL] = np.eye(3) * dt
+        if accel is not None and R_n_b is not None:
+            acc = R_n_b @ (accel - x[BIAS]) + GRAVITY_N
+            F[POS, BIAS] = -0.5 * R_n_b * dt**2
+            F[VEL, BIAS] = -R_n_b * dt
+            sigma = cfg.accel_noise
+        else:
+            acc = np.zeros(3)
+            sigma = cfg.motion_accel_std
+        speed = float(np.linalg.norm(x[VEL]))
+        x[POS] += x[VEL] * dt + 0.5 * acc * dt**2
+        x[VEL] += acc * dt
+        self.ekf.F = F
+        self.ekf.Q = self._process_noise(dt, sigma, speed, accel is not None)
+        self.ekf.P = F @ self.ekf.P @ F.T + self.ekf.Q
+        self.t = t
+
+    def _process_noise(self, dt: float, sigma: float, speed: float, imu: bool) -> np.ndarray:
+        cfg = self.cfg
+        Q = np.zeros((DIM, DIM))
+        q = sigma**2
+        Q[POS, POS] = np.eye(3) * q * dt**3 / 3
+        Q[POS, VEL] = Q[VEL, POS] = np.eye(3) * q * dt**2 / 2
+        Q[VEL, VEL] = np.eye(3) * q * dt
+        if imu:
+            Q[BIAS, BIAS] = np.eye(3) * cfg.accel_bias_walk**2 * dt
+        Q[ANCHOR, ANCHOR] = np.eye(3) * cfg.vo_drift_per_m**2 * speed * dt
+        Q[LOG_SCALE, LOG_SCALE] = cfg.scale_walk_per_sqrt_s**2 * dt
+        Q[THETA, THETA] = np.eye(3) * np.radians(cfg.alignment_walk_deg_per_sqrt_s) ** 2 * dt
+        Q[GROUND, GROUND] = cfg.ground_walk_m_per_sqrt_s**2 * dt * (1.0 + speed)
+        Q[BARO, BARO] = cfg.baro_walk_m_per_sqrt_s**2 * dt
+        return Q
