@@ -65,7 +65,7 @@ def view_problem(grey: np.ndarray, detection: Detection, max_blur_px: float) -> 
 def missing_board_reason(grey: np.ndarray, spec: BoardSpec) -> str:
     """Why no usable board was found: cut off by the image border, or simply not there."""
     if spec.kind == "charuco":
-        return "no board found (fewer than 6 ChArUco corners recognised)"
+        return "no board found (fewer than 6 ChArUco corners recognised, or all in one line)"
     part = chessboard_cut_by_border(grey)
     if part is not None and part[0] * part[1] < spec.n_corners:
         return (f"board cut off by the image border (only a {part[0]}x{part[1]} corner grid "
