@@ -24,7 +24,8 @@ class _Domain:
 
     def __init__(self, window_s: float):
         self.window_s = window_s
-        self.samples: deque[tuple[float, float]] = deque()  # (arrival, arrival - remote)
+        # (arrival, arrival - remote) with increasing delays: the window's minimum is first
+        self.samples: deque[tuple[float, float]] = deque()
         self.strikes = 0
 
     def observe(self, remote: float, arrival: float) -> bool:
@@ -36,13 +37,15 @@ class _Domain:
                 return False
             self.samples.clear()
         self.strikes = 0
+        while self.samples and self.samples[-1][1] >= delay:
+            self.samples.pop()
         self.samples.append((arrival, delay))
         while self.samples[0][0] < arrival - self.window_s:
             self.samples.popleft()
         return True
 
     def offset(self) -> float | None:
-        return min(d for _, d in self.samples) if self.samples else None
+        return self.samples[0][1] if self.samples else None
 
 
 class ClockMap:

@@ -33,13 +33,25 @@ def skew(v: np.ndarray) -> np.ndarray:
 
 
 def rotvec_to_matrix(v: np.ndarray) -> np.ndarray:
-    """exp([v]x)."""
-    return Rotation.from_rotvec(v).as_matrix()
+    """exp([v]x) (Rodrigues)."""
+    angle = float(np.sqrt(v @ v))
+    K = skew(v)
+    if angle < 1e-8:
+        return np.eye(3) + K
+    return (np.eye(3) + np.sin(angle) / angle * K
+            + (1.0 - np.cos(angle)) / angle**2 * (K @ K))
 
 
 def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
     """log(R) as a rotation vector."""
-    return Rotation.from_matrix(R).as_rotvec()
+    cos = float(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))
+    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / 2.0
+    angle = float(np.arccos(cos))
+    if angle < 1e-6:
+        return axis
+    if angle > np.pi - 1e-3:  # near a half turn the antisymmetric part vanishes
+        return Rotation.from_matrix(R).as_rotvec()
+    return axis * (angle / np.sin(angle))
 
 
 class NavFilter:

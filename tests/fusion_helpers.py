@@ -1,0 +1,290 @@
+"""A simulated flight for the fusion tests: ground truth, the autopilot's sensor messages and
+tracker results made from the truth (unknown scale, arbitrary world frame, noise, drift,
+quality drops, a new map segment).
+
+The flight: take-off from the ground to 8 m, then a stop-and-go lawnmower survey, minimum-jerk
+between waypoints; attitude follows the acceleration like a multirotor's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink2
+from scipy.spatial.transform import Rotation
+
+from daemon.config import MavlinkConfig, MountingConfig
+from daemon.mounting import body_from_camera
+from vo.result import FrameResult
+
+GRAVITY = np.array([0.0, 0.0, 9.80665])
+DT = 0.005  # truth at 200 Hz
+BOOT_OFFSET = 123.456  # our clock minus the autopilot's boot clock
+CAMERA_HEIGHT = 0.15  # camera above ground when landed
+
+
+@dataclass
+class Truth:
+    """Body position, velocity (NED), attitude R_N_b and specific force (body) at 200 Hz."""
+
+    t: np.ndarray
+    p: np.ndarray
+    v: np.ndarray
+    R: np.ndarray
+    f: np.ndarray
+
+    def at(self, t: float) -> int:
+        return int(np.clip(round((t - self.t[0]) / DT), 0, len(self.t) - 1))
+
+    def distance(self, t0: float, t1: float) -> float:
+        i, j = self.at(t0), self.at(t1)
+        return float(np.sum(np.linalg.norm(np.diff(self.p[i:j + 1], axis=0), axis=1)))
+
+
+def _min_jerk(p0: np.ndarray, p1: np.ndarray, n: int) -> np.ndarray:
+    s = np.linspace(0.0, 1.0, n, endpoint=False)[:, None]
+    return p0 + (p1 - p0) * (10 * s**3 - 15 * s**4 + 6 * s**5)
+
+
+def survey_flight(climb_m: float = 8.0, leg_m: float = 30.0, legs: int = 4,
+                  yaw_deg: float = 35.0) -> Truth:
+    """Take-off (4 s climb after 1 s on the ground), lawnmower legs at 3 m/s, hover 1 s."""
+    waypoints = [np.zeros(3), np.zeros(3), np.array([0.0, 0.0, -climb_m])]
+    durations = [1.0, 4.0]
+    for k in range(legs):
+        x = leg_m if k % 2 == 0 else 0.0
+        last = waypoints[-1]
+        waypoints += [np.array([x, last[1], -climb_m]), np.array([x, last[1] + 8.0, -climb_m])]
+        durations += [leg_m / 2.0, 4.0]
+    chunks = [_min_jerk(a, b, int(round(d / DT)))
+              for a, b, d in zip(waypoints[:-1], waypoints[1:], durations, strict=True)]
+    p = np.concatenate(chunks + [np.repeat(waypoints[-1][None], int(1.0 / DT), 0)])
+    t = np.arange(len(p)) * DT
+    v = np.gradient(p, DT, axis=0)
+    a = np.gradient(v, DT, axis=0)
+    yaw = np.radians(yaw_deg) + 0.2 * np.sin(2 * np.pi * t / 40.0)
+    R = np.stack([_attitude(ai, y) for ai, y in zip(a, yaw, strict=True)])
+    f = np.einsum("nji,nj->ni", R, a - GRAVITY)
+    return Truth(t, p, v, R, f)
+
+
+def _attitude(accel: np.ndarray, yaw: float) -> np.ndarray:
+    """R_N_b whose -z axis carries the thrust for `accel`, with heading `yaw`."""
+    z = (GRAVITY - accel) / np.linalg.norm(GRAVITY - accel)  # thrust along body -z
+    x_h = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    y = np.cross(z, x_h)
+    y /= np.linalg.norm(y)
+    x = np.cross(y, z)
+    return np.stack([x, y, z], axis=1)
+
+
+@dataclass
+class SensorOptions:
+    """Which autopilot sensors exist and how noisy they are."""
+
+    imu: str | None = "SCALED_IMU"
+    imu_hz: float = 50.0
+    accel_noise: float = 0.05
+    accel_bias: tuple = (0.05, -0.04, 0.08)
+    attitude_hz: float = 20.0
+    tilt_noise_deg: float = 0.3
+    heading_noise_deg: float = 1.0
+    heading_bias_deg: float = 0.5
+    rangefinder: bool = True
+    range_noise_m: float = 0.02
+    baro: bool = True
+    baro_noise_m: float = 0.2
+    latency: tuple = (0.005, 0.02)
+
+
+@dataclass
+class TrackerOptions:
+    """How the simulated tracker sees the flight."""
+
+    fps: float = 30.0
+    start_s: float = 1.5
+    scale: float = 0.27  # VO units per metre
+    noise_m: float = 0.01
+    drift_per_sqrt_m: float = 0.01
+    cov_std_m: float = 0.02
+    rot_noise_deg: float = 0.2
+    weak: tuple = ()  # (t0, t1) windows of 'insufficient' tracking
+    lost: tuple = ()  # (t0, t1) windows without pose; a new map starts after each
+    delay_s: float = 0.03  # capture -> result
+
+
+@dataclass
+class Flight:
+    """Everything the estimator is fed, in arrival order, and the truth to score it."""
+
+    truth: Truth
+    messages: list = field(default_factory=list)  # (arrival, msg)
+    frames: list = field(default_factory=list)  # (ready time, FrameResult, t_capture)
+
+
+def autopilot_messages(truth: Truth, opt: SensorOptions, rng: np.random.Generator) -> list:
+    """(arrival time on our clock, MAVLink message) for every stream, sorted by arrival."""
+    out = []
+
+    def emit(hz: float, make) -> None:
+        for t in np.arange(0.0, truth.t[-1], 1.0 / hz):
+            msg = make(truth.at(t), int(round(t * 1000)))
+            if msg is not None:
+                out.append((t + BOOT_OFFSET + rng.uniform(*opt.latency), msg))
+
+    bias = np.array(opt.accel_bias)
+    if opt.imu is not None:
+        def imu(i: int, ms: int):
+            acc = truth.f[i] + bias + rng.normal(0, opt.accel_noise, 3)
+            if opt.imu == "HIGHRES_IMU":
+                return mavlink2.MAVLink_highres_imu_message(ms * 1000, *acc, 0, 0, 0, 0, 0, 0,
+                                                            0, 0, 0, 25, 0b111)
+            mg = np.round(acc / 9.80665 * 1000).astype(int)
+            return mavlink2.MAVLink_scaled_imu_message(ms, *mg, 0, 0, 0, 0, 0, 0)
+        emit(opt.imu_hz, imu)
+
+    def attitude(i: int, ms: int):
+        noise = np.radians(rng.normal(0, [opt.tilt_noise_deg, opt.tilt_noise_deg,
+                                          opt.heading_noise_deg]))
+        yaw, pitch, roll = Rotation.from_matrix(truth.R[i]).as_euler("ZYX")
+        return mavlink2.MAVLink_attitude_message(
+            ms, roll + noise[0], pitch + noise[1],
+            yaw + noise[2] + np.radians(opt.heading_bias_deg), 0, 0, 0)
+    emit(opt.attitude_hz, attitude)
+
+    if opt.rangefinder:
+        def distance(i: int, ms: int):
+            height = -truth.p[i, 2] + CAMERA_HEIGHT
+            d = height / truth.R[i][2, 2] + rng.normal(0, opt.range_noise_m)
+            return mavlink2.MAVLink_distance_sensor_message(
+                ms, 10, 4000, int(round(100 * d)), 0, 0,
+                mavlink2.MAV_SENSOR_ROTATION_PITCH_270, 0)
+        emit(10.0, distance)
+
+    if opt.baro:
+        drift = 0.0
+
+        def pressure(i: int, ms: int):
+            nonlocal drift
+            drift += rng.normal(0, 0.005)
+            alt = 120.0 - truth.p[i, 2] + drift + rng.normal(0, opt.baro_noise_m)
+            hpa = 1013.25 * (1 - alt / 44330.77) ** (1 / 0.190263)
+            return mavlink2.MAVLink_scaled_pressure_message(ms, hpa, 0.0, 2000)
+        emit(10.0, pressure)
+    out.sort(key=lambda item: item[0])
+    return out
+
+
+def _random_rotation(rng: np.random.Generator) -> np.ndarray:
+    return Rotation.random(random_state=rng.integers(1 << 31)).as_matrix()
+
+
+def tracker_results(truth: Truth, opt: TrackerOptions, mounting: MountingConfig,
+                    rng: np.random.Generator) -> list:
+    """(ready time, FrameResult, t_capture) at the tracker's frame rate."""
+    R_b_c = body_from_camera(mounting)
+    out, drift, last_p, segment = [], np.zeros(3), None, None
+    for t in np.arange(opt.start_s, truth.t[-1], 1.0 / opt.fps):
+        i = truth.at(t)
+        p_cam = truth.p[i]
+        if last_p is not None:
+            step = np.linalg.norm(p_cam - last_p)
+            drift += rng.normal(0, opt.drift_per_sqrt_m * np.sqrt(step), 3)
+        last_p = p_cam
+        t_capture = t + BOOT_OFFSET
+        if any(a <= t < b for a, b in opt.lost):
+            out.append((t_capture + opt.delay_s, FrameResult(t, None, "lost"), t_capture))
+            segment = None
+            continue
+        new = segment is None
+        if new:
+            segment = (_random_rotation(rng), p_cam + drift, rng.normal(0, 2.0, 3),
+                       opt.scale * (1.0 if not out else rng.uniform(0.5, 2.0)))
+        R_w_n, origin, w0, scale = segment
+        weak = any(a <= t < b for a, b in opt.weak)
+        noise = opt.noise_m * (3.0 if weak else 1.0)
+        p_w = w0 + scale * (R_w_n @ (p_cam + drift - origin + rng.normal(0, noise, 3)))
+        rot_noise = Rotation.from_rotvec(np.radians(rng.normal(0, opt.rot_noise_deg, 3)))
+        T = np.eye(4)
+        T[:3, :3] = rot_noise.as_matrix() @ R_w_n @ truth.R[i] @ R_b_c
+        T[:3, 3] = p_w
+        cov = np.diag([(scale * opt.cov_std_m * (3.0 if weak else 1.0)) ** 2] * 3
+                      + [np.radians(opt.rot_noise_deg) ** 2] * 3)
+        result = FrameResult(t, T, "insufficient" if weak else "good", cov, new_segment=new)
+        out.append((t_capture + opt.delay_s, result, t_capture))
+    return out
+
+
+def simulate(sensors: SensorOptions | None = None, tracker: TrackerOptions | None = None,
+             mounting: MountingConfig | None = None, seed: int = 1,
+             truth: Truth | None = None) -> Flight:
+    """A flight with its message and frame streams."""
+    rng = np.random.default_rng(seed)
+    truth = truth or survey_flight()
+    mounting = mounting or MountingConfig()
+    return Flight(truth, autopilot_messages(truth, sensors or SensorOptions(), rng),
+                  tracker_results(truth, tracker or TrackerOptions(), mounting, rng))
+
+
+def run(flight: Flight, estimator) -> list:
+    """Feed messages and frames in arrival order; (t_capture, estimate or None) per frame."""
+    out, k = [], 0
+    msgs = flight.messages
+    clock = {"now": 0.0}
+    estimator.now = lambda: clock["now"]
+    for ready, result, t_capture in flight.frames:
+        while k < len(msgs) and msgs[k][0] <= ready:
+            clock["now"] = msgs[k][0]
+            estimator.on_autopilot_message(msgs[k][1])
+            k += 1
+        clock["now"] = ready
+        out.append((t_capture, estimator.on_frame(result, t_capture)))
+    return out
+
+
+@dataclass
+class Score:
+    """Accuracy of the published estimates against the truth."""
+
+    published: int
+    first_published_s: float
+    position_rmse_m: float
+    distance_m: float
+    heading_rms_deg: float
+    velocity_rmse_m_s: float
+    nees_position: float  # mean NEES per degree of freedom
+
+    @property
+    def position_pct(self) -> float:
+        return 100.0 * self.position_rmse_m / max(self.distance_m, 1e-9)
+
+
+def score(flight: Flight, estimates: list, start_s: float) -> Score:
+    """Compare published estimates with the truth; the local origin is the truth position
+    at `start_s` (the first tracked frame): no other alignment."""
+    truth = flight.truth
+    origin = truth.p[truth.at(start_s)]
+    pos_err, head_err, vel_err, nees, times = [], [], [], [], []
+    for t_capture, e in estimates:
+        if e is None:
+            continue
+        t = t_capture - BOOT_OFFSET
+        i = truth.at(t)
+        err = e.position - (truth.p[i] - origin)
+        pos_err.append(err)
+        vel_err.append(e.velocity_local - truth.v[i])
+        nees.append(err @ np.linalg.solve(e.pose_covariance[:3, :3], err) / 3.0)
+        R = e.R_local_body @ truth.R[i].T
+        head_err.append(np.degrees(np.arctan2(R[1, 0], R[0, 0])))
+        times.append(t)
+    if not times:
+        return Score(0, np.inf, np.inf, 0.0, np.inf, np.inf, np.inf)
+    rms = lambda a: float(np.sqrt(np.mean(np.sum(np.square(a), axis=-1))))  # noqa: E731
+    return Score(len(times), times[0], rms(np.array(pos_err)), truth.distance(times[0], times[-1]),
+                 rms(np.array(head_err)[:, None]), rms(np.array(vel_err)), float(np.mean(nees)))
+
+
+def link_config() -> MavlinkConfig:
+    """A link config whose covariance floor does not hide the filter's own covariance."""
+    return MavlinkConfig(position_std_m=1e-3, angle_std_rad=1e-3)
