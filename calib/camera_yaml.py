@@ -11,19 +11,14 @@ from pathlib import Path
 import yaml
 
 from calib.camera import CameraModel, canonical_model_name
-from calib.errors import InputError
+from calib.errors import InputError, read_text
 
 REQUIRED_KEYS = ("width", "height", "fx", "fy", "cx", "cy")
 
 
 def _read_mapping(path: Path) -> tuple[dict, dict[str, int]]:
     """The YAML mapping in `path` and the 1-based line of each top-level key."""
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise InputError("file not found", path) from None
-    except OSError as exc:
-        raise InputError(f"cannot read: {exc.strerror}", path) from None
+    text = read_text(path)
     try:
         node = yaml.compose(text, Loader=yaml.SafeLoader)
         data = yaml.safe_load(text)

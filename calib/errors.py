@@ -20,3 +20,13 @@ class InputError(ValueError):
             where = self.path if self.line is None else f"{self.path}:{self.line}"
             where += ": "
         return where + self.message
+
+
+def read_text(path: str | Path) -> str:
+    """The text of a user-named file; InputError saying why when it cannot be read."""
+    try:
+        return Path(path).read_text()
+    except FileNotFoundError:
+        raise InputError("file not found", path) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read as text: {exc}", path) from None

@@ -7,18 +7,12 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.errors import InputError
+from calib.errors import InputError, read_text
 
 
 def read_lines(path: str | Path) -> Iterator[tuple[int, list[str]]]:
     """(line number, fields) for each non-empty, non-comment line of a text file."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise InputError("file not found", path) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read as text: {exc}", path) from None
+    text = read_text(path)
     for number, raw in enumerate(text.splitlines(), start=1):
         line = raw.strip()
         if not line or line.startswith("#"):

@@ -15,7 +15,7 @@ import numpy as np
 import yaml
 
 from calib.camera import CameraModel, canonical_model_name
-from calib.errors import InputError
+from calib.errors import InputError, read_text
 
 _OPENCV_HEADER = re.compile(r"\A\s*%YAML[: ]1\.\d+\s*\n(---\s*\n)?")
 
@@ -56,12 +56,7 @@ def _read_xml(path: Path) -> dict:
 def read_document(path: str | Path) -> dict:
     """The top-level mapping of a YAML or OpenCV YAML/XML file; InputError when unreadable."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise InputError("file not found", path) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read: {exc}", path) from None
+    text = read_text(path)
     if text.lstrip().startswith("<?xml") or text.lstrip().startswith("<opencv_storage"):
         return _read_xml(path)
     try:
