@@ -91,7 +91,7 @@ class PassThroughEstimator:
         R_w_b = T_w_c[:3, :3] @ self.R_c_b
         p_w = T_w_c[:3, 3]
         if self._anchor is None:
-            self._start_segment(R_w_b, p_w)
+            self._start_segment(R_w_b, p_w, result.t)
             return None
         R_L_w, p_w0, p_L0 = self._anchor
         position = p_L0 + self.scale * (R_L_w @ (p_w - p_w0))
@@ -101,7 +101,7 @@ class PassThroughEstimator:
             self._last = estimate
         return estimate
 
-    def _start_segment(self, R_w_b: np.ndarray, p_w: np.ndarray) -> None:
+    def _start_segment(self, R_w_b: np.ndarray, p_w: np.ndarray, t: float) -> None:
         """Anchor L: the first segment at the levelled start pose, later ones at the last pose
         sent, so a new map continues where the old one stopped (reset_counter still changes)."""
         if self._last is None:
@@ -110,7 +110,7 @@ class PassThroughEstimator:
         else:
             R_L_b0, p_L0 = self._last.R_local_body, self._last.position
         self._anchor = (R_L_b0 @ R_w_b.T, p_w.copy(), p_L0.copy())
-        self._previous = (p_L0, R_L_b0, None)
+        self._previous = (p_L0, R_L_b0, t)
 
     def _with_motion(self, result: object, t_capture: float, position: np.ndarray,
                      R_L_b: np.ndarray, R_L_w: np.ndarray) -> VisionEstimate | None:
