@@ -42,7 +42,7 @@ class FusionConfig:
     scale_walk_per_sqrt_s: float = 0.002  # ln(scale) random walk (scale drift of the map)
     # IMU (HIGHRES_IMU / SCALED_IMU / RAW_IMU): accelerometer noise and bias
     use_imu: bool = True
-    accel_noise: float = 0.3  # m/s^2 per sample period, includes attitude error times gravity
+    accel_noise: float = 0.1  # m/s^2/sqrt(Hz) white noise, includes attitude error times g
     accel_bias_std: float = 0.2  # m/s^2 initial
     accel_bias_walk: float = 0.01  # m/s^2 per sqrt(s)
     imu_timeout_s: float = 0.1
