@@ -230,8 +230,11 @@ class Service:
     # --- periodic tasks -------------------------------------------------------------------
 
     async def _heartbeats(self) -> None:
-        """HEARTBEAT at exactly 1 Hz on the loop clock (no drift from send times)."""
+        """HEARTBEAT at exactly 1 Hz on the loop clock (no drift from send times), the first
+        as soon as the link is open."""
         loop = asyncio.get_running_loop()
+        while not self.link.connected:
+            await asyncio.sleep(HOUSEKEEPING_S)
         due = loop.time()
         while True:
             self.codec.send(messages.heartbeat(self.codec.mav, self.heartbeat_state()))
