@@ -57,26 +57,26 @@ def survey_flight(climb_m: float = 8.0, leg_m: float = 30.0, legs: int = 4,
         last = waypoints[-1]
         waypoints += [np.array([x, last[1], -climb_m]), np.array([x, last[1] + 8.0, -climb_m])]
         durations += [leg_m / 2.0, 4.0]
-    chunks = [_min_jerk(a, b, int(round(d / DT)))
+    chunks = [_min_jerk(a, b, round(d / DT))
               for a, b, d in zip(waypoints[:-1], waypoints[1:], durations, strict=True)]
-    p = np.concatenate(chunks + [np.repeat(waypoints[-1][None], int(1.0 / DT), 0)])
+    p = np.concatenate([*chunks, np.repeat(waypoints[-1][None], int(1.0 / DT), 0)])
     t = np.arange(len(p)) * DT
     v = np.gradient(p, DT, axis=0)
     a = np.gradient(v, DT, axis=0)
     yaw = np.radians(yaw_deg) + 0.2 * np.sin(2 * np.pi * t / 40.0)
-    R = np.stack([_attitude(ai, y) for ai, y in zip(a, yaw, strict=True)])
+    R = _attitudes(a, yaw)
     f = np.einsum("nji,nj->ni", R, a - GRAVITY)
     return Truth(t, p, v, R, f)
 
 
-def _attitude(accel: np.ndarray, yaw: float) -> np.ndarray:
-    """R_N_b whose -z axis carries the thrust for `accel`, with heading `yaw`."""
-    z = (GRAVITY - accel) / np.linalg.norm(GRAVITY - accel)  # thrust along body -z
-    x_h = np.array([np.cos(yaw), np.sin(yaw), 0.0])
-    y = np.cross(z, x_h)
-    y /= np.linalg.norm(y)
-    x = np.cross(y, z)
-    return np.stack([x, y, z], axis=1)
+def _attitudes(accel: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """R_N_b whose -z axis carries the thrust for `accel`, with heading `yaw` (N rows)."""
+    z = GRAVITY - accel
+    z /= np.linalg.norm(z, axis=1, keepdims=True)
+    heading = np.stack([np.cos(yaw), np.sin(yaw), np.zeros_like(yaw)], axis=1)
+    y = np.cross(z, heading)
+    y /= np.linalg.norm(y, axis=1, keepdims=True)
+    return np.stack([np.cross(y, z), y, z], axis=2)
 
 
 @dataclass
@@ -129,7 +129,7 @@ def autopilot_messages(truth: Truth, opt: SensorOptions, rng: np.random.Generato
 
     def emit(hz: float, make) -> None:
         for t in np.arange(0.0, truth.t[-1], 1.0 / hz):
-            msg = make(truth.at(t), int(round(t * 1000)))
+            msg = make(truth.at(t), round(t * 1000))
             if msg is not None:
                 out.append((t + BOOT_OFFSET + rng.uniform(*opt.latency), msg))
 
@@ -158,7 +158,7 @@ def autopilot_messages(truth: Truth, opt: SensorOptions, rng: np.random.Generato
             height = -truth.p[i, 2] + CAMERA_HEIGHT
             d = height / truth.R[i][2, 2] + rng.normal(0, opt.range_noise_m)
             return mavlink2.MAVLink_distance_sensor_message(
-                ms, 10, 4000, int(round(100 * d)), 0, 0,
+                ms, 10, 4000, round(100 * d), 0, 0,
                 mavlink2.MAV_SENSOR_ROTATION_PITCH_270, 0)
         emit(10.0, distance)
 

@@ -1,0 +1,95 @@
+"""Fusion on a simulated take-off + survey with a downward camera: accuracy after convergence,
+scale convergence time, filter consistency (NEES) and the sensor variants.
+
+The numbers are printed (run with -s to see them)."""
+
+from __future__ import annotations
+
+import fusion_helpers as fh
+import numpy as np
+import pytest
+
+from daemon.config import MountingConfig
+from daemon.fusion import FusionConfig, FusionEstimator
+
+TAKEOFF_START_S = 1.0
+TRACKER = fh.TrackerOptions(weak=((20.0, 24.0),), lost=((40.0, 40.5),))
+VARIANTS = {"rangefinder only": fh.SensorOptions(baro=False),
+            "baro only": fh.SensorOptions(rangefinder=False),
+            "IMU missing": fh.SensorOptions(imu=None),
+            "HIGHRES_IMU": fh.SensorOptions(imu="HIGHRES_IMU")}
+
+
+@pytest.fixture(scope="module")
+def truth() -> fh.Truth:
+    return fh.survey_flight()
+
+
+def fly(truth: fh.Truth, sensors: fh.SensorOptions, tracker: fh.TrackerOptions = TRACKER,
+        seed: int = 3) -> tuple[fh.Score, FusionEstimator, list, list]:
+    flight = fh.simulate(sensors, tracker, seed=seed, truth=truth)
+    texts: list[str] = []
+    estimator = FusionEstimator(FusionConfig(), MountingConfig(), fh.link_config(),
+                                report=texts.append)
+    out = fh.run(flight, estimator)
+    score = fh.score(flight, out, tracker.start_s)
+    print(f"\n{score}\nposition RMSE {score.position_pct:.2f}% of {score.distance_m:.0f} m")
+    return score, estimator, out, texts
+
+
+@pytest.fixture(scope="module")
+def survey(truth: fh.Truth):
+    return fly(truth, fh.SensorOptions())
+
+
+def test_survey_accuracy_after_convergence(survey) -> None:
+    score, _estimator, out, _ = survey
+    assert score.position_pct <= 3.0
+    assert score.heading_rms_deg <= 2.0
+    assert score.velocity_rmse_m_s < 0.2
+    assert 0.5 <= score.nees_position <= 2.0
+    assert score.published > 0.85 * len(out)
+
+
+def test_scale_converges_within_5_s_of_take_off(survey) -> None:
+    score, _estimator, _out, texts = survey
+    assert score.first_published_s - TAKEOFF_START_S <= 5.0
+    assert texts[0].startswith("aligning") and any(t.startswith("aligned") for t in texts)
+
+
+def test_nothing_published_before_alignment(survey) -> None:
+    _, _, out, _ = survey
+    first = next(i for i, (_, e) in enumerate(out) if e is not None)
+    assert first > 0 and all(e is None for _, e in out[:first])
+
+
+def test_new_map_keeps_position_and_counts_one_reset(survey, truth: fh.Truth) -> None:
+    _, estimator, out, _texts = survey
+    assert estimator.reset_counter == 1
+    counters = {e.reset_counter for _, e in out if e is not None}
+    assert counters == {0, 1}
+    after = [(t, e) for t, e in out if e is not None and e.reset_counter == 1]
+    t, e = after[0]
+    origin = truth.p[truth.at(TRACKER.start_s)]
+    error = np.linalg.norm(e.position - (truth.p[truth.at(t - fh.BOOT_OFFSET)] - origin))
+    assert error < 1.0  # the vehicle did not jump to a new origin
+    assert t - fh.BOOT_OFFSET - TRACKER.lost[0][1] < 5.0  # re-aligned within seconds
+
+
+def test_weak_tracking_inflates_covariance(survey) -> None:
+    _, _, out, _ = survey
+    weak = [e for t, e in out if e is not None and e.state == "insufficient"]
+    good = [e for t, e in out if e is not None and e.state == "good"]
+    trace = lambda es: np.median([np.trace(e.pose_covariance[:3, :3]) for e in es])  # noqa: E731
+    assert weak and trace(weak) > 2.0 * trace(good)
+    assert np.median([e.quality for e in weak]) < np.median([e.quality for e in good])
+
+
+@pytest.mark.parametrize("name", list(VARIANTS))
+def test_sensor_variants(truth: fh.Truth, name: str) -> None:
+    score, _estimator, out, _ = fly(truth, VARIANTS[name])
+    print(f"{name}: published {score.published}/{len(out)}")
+    assert score.position_pct <= 3.0
+    assert score.heading_rms_deg <= 2.0
+    assert np.isfinite(score.velocity_rmse_m_s)
+    assert score.first_published_s - TAKEOFF_START_S <= 5.0
