@@ -43,6 +43,8 @@ class TrackerConfig:
     kf_min_frames: int = 30
     kf_points_ratio: float = 0.9
     lost_points_ratio: float = 0.3
+    # count the points seen as the frame's inlier matches (else: map points projecting inside)
+    kf_count_inliers: bool = False
     max_keyframes: int = 30
     covisible_min_shared: int = 10
     mapping_queue_size: int = 4
@@ -55,6 +57,9 @@ class TrackerConfig:
     init_ransac_px: float = 2.0
     init_min_inliers: int = 40
     init_map_depth: float = 1.0
+    # use the 5-point essential matrix instead when the homography explains fewer than this
+    # fraction of its inliers (0 = homography only, as in the thesis text)
+    init_homography_ratio: float = 0.8
 
     # points, depth filter and matcher (6.3, 6.5, 6.6.2, 6.6.3)
     seed_a: float = 10.0

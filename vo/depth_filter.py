@@ -50,3 +50,15 @@ def update_seeds(idx, x, tau, mu, sigma, a, b, rho_range):
         sigma[i] = np.sqrt(s2)
         a[i] = aa
         b[i] = bb
+
+
+def converged(rho: np.ndarray, sigma: np.ndarray, pos_w: np.ndarray, host_centre: np.ndarray,
+              cam_centre: np.ndarray, threshold: float) -> np.ndarray:
+    """Vectorised convergence test L < threshold for points seen from a host and a camera."""
+    ray_h = pos_w - host_centre
+    ray_c = pos_w - cam_centre
+    d = np.linalg.norm(ray_c, axis=1)
+    cos_par = np.einsum("ij,ij->i", ray_h, ray_c) / (np.linalg.norm(ray_h, axis=1) * d)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        L = 4.0 * sigma / (rho * rho) / d * np.abs(cos_par)
+    return (rho > 0) & (L < threshold)

@@ -79,6 +79,32 @@ def pose_from_homography(x1: np.ndarray, x2: np.ndarray, threshold: float, seed:
     return best[0], best[1], inl
 
 
+def pose_from_essential(x1: np.ndarray, x2: np.ndarray, threshold: float, seed: int):
+    """(R, t, inlier mask) from the 5-point essential matrix (Stewenius, via OpenCV) in RANSAC,
+    the cheirality-checked decomposition; None on failure."""
+    cv2.setRNGSeed(seed)
+    E, mask = cv2.findEssentialMat(x1, x2, np.eye(3), cv2.RANSAC, 0.999, threshold)
+    if E is None or E.shape != (3, 3):
+        return None
+    n, R, t, pose_mask = cv2.recoverPose(E, x1, x2, np.eye(3), mask=mask.copy())
+    if n == 0:
+        return None
+    return R, t.ravel() / np.linalg.norm(t), pose_mask.ravel().astype(bool)
+
+
+def two_view_pose(x1: np.ndarray, x2: np.ndarray, threshold: float, seed: int,
+                  homography_ratio: float):
+    """The homography solution, unless the essential matrix explains clearly more points
+    (inliers of H < homography_ratio x inliers of E: a non-planar scene)."""
+    found = pose_from_homography(x1, x2, threshold, seed)
+    if homography_ratio <= 0.0:
+        return found
+    alt = pose_from_essential(x1, x2, threshold, seed)
+    if alt is not None and (found is None or found[2].sum() < homography_ratio * alt[2].sum()):
+        return alt
+    return found
+
+
 class Initializer:
     """Tracks the reference frame's corners into new frames until a map can be built."""
 
@@ -127,7 +153,8 @@ class Initializer:
         x1 = f_ref[:, :2] / f_ref[:, 2:]
         x2 = f_cur[:, :2] / f_cur[:, 2:]
         focal = float(np.sqrt(self.camera.fx * self.camera.fy))
-        found = pose_from_homography(x1, x2, self.config.init_ransac_px / focal, self.config.seed)
+        found = two_view_pose(x1, x2, self.config.init_ransac_px / focal, self.config.seed,
+                              self.config.init_homography_ratio)
         if found is None:
             return None
         R, t, inl = found

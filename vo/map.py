@@ -104,6 +104,42 @@ class PointStore:
         return np.flatnonzero((self.status == CANDIDATE) | (self.status == CONVERGED))
 
 
+class Observations:
+    """Which keyframe saw which point where: columns point, kf, u, v (level 0), level."""
+
+    def __init__(self):
+        self.point = np.zeros(0, dtype=np.int64)
+        self.kf = np.zeros(0, dtype=np.int64)
+        self.uv = np.zeros((0, 2))
+        self.level = np.zeros(0, dtype=np.int64)
+        self._csr: tuple[np.ndarray, np.ndarray] | None = None
+
+    def __len__(self) -> int:
+        return len(self.point)
+
+    def add(self, slot: int, point: np.ndarray, uv: np.ndarray, level: np.ndarray) -> None:
+        """Append observations of `point` by keyframe `slot`."""
+        self.point = np.concatenate((self.point, point))
+        self.kf = np.concatenate((self.kf, np.full(len(point), slot, np.int64)))
+        self.uv = np.concatenate((self.uv, uv))
+        self.level = np.concatenate((self.level, level))
+        self._csr = None
+
+    def keep(self, mask: np.ndarray) -> None:
+        """Drop the observations where mask is False."""
+        self.point, self.kf = self.point[mask], self.kf[mask]
+        self.uv, self.level = self.uv[mask], self.level[mask]
+        self._csr = None
+
+    def by_point(self, n_points: int) -> tuple[np.ndarray, np.ndarray]:
+        """(start offsets per point (n_points + 1), observation order) grouping rows by point."""
+        if self._csr is None or len(self._csr[0]) != n_points + 1:
+            order = np.argsort(self.point, kind="stable")
+            start = np.searchsorted(self.point[order], np.arange(n_points + 1))
+            self._csr = (start.astype(np.int64), order.astype(np.int64))
+        return self._csr
+
+
 class Map:
     """Keyframes (Python objects, pyramids in slots), points and observations of one map."""
 
@@ -115,8 +151,7 @@ class Map:
         self.kf_T_c_w = np.tile(np.eye(4), (n_slots, 1, 1))
         self.keyframes: dict[int, Frame] = {}
         self.points = PointStore()
-        self.obs_point = np.zeros(0, dtype=np.int64)
-        self.obs_kf = np.zeros(0, dtype=np.int64)
+        self.obs = Observations()
 
     def __len__(self) -> int:
         return len(self.keyframes)
@@ -129,33 +164,24 @@ class Map:
         self.kf_pyr[slot, : len(frame.pyr.flat)] = frame.pyr.flat
         self.kf_T_c_w[slot] = frame.T_c_w
         self.keyframes[slot] = frame
-        self.add_observations(slot, frame.feat_point)
+        self.obs.add(slot, frame.feat_point, frame.feat_px, frame.feat_level)
         return slot
-
-    def add_observations(self, slot: int, point_ids: np.ndarray) -> None:
-        """Record that keyframe `slot` sees the points `point_ids`."""
-        self.obs_point = np.concatenate((self.obs_point, point_ids))
-        self.obs_kf = np.concatenate((self.obs_kf, np.full(len(point_ids), slot, np.int64)))
 
     def remove_keyframe(self, slot: int) -> None:
         """Drop a keyframe, the points it hosts and its observations."""
         self.points.delete(np.flatnonzero((self.points.host == slot)
                                           & (self.points.status != FREE)))
-        keep = self.obs_kf != slot
-        self.obs_point = self.obs_point[keep]
-        self.obs_kf = self.obs_kf[keep]
+        self.obs.keep(self.obs.kf != slot)
         del self.keyframes[slot]
 
     def prune_observations(self) -> None:
         """Forget observations of deleted points (keeps the table bounded)."""
-        keep = self.points.status[self.obs_point] != DELETED
-        keep &= self.points.status[self.obs_point] != FREE
-        self.obs_point = self.obs_point[keep]
-        self.obs_kf = self.obs_kf[keep]
+        status = self.points.status[self.obs.point]
+        self.obs.keep((status != DELETED) & (status != FREE))
 
     def covisible(self, point_ids: np.ndarray, exclude: int, min_shared: int) -> list[int]:
         """Keyframe slots sharing at least `min_shared` of `point_ids`, most shared first."""
-        counts = _shared_counts(self.obs_point, self.obs_kf, np.asarray(point_ids, np.int64),
+        counts = _shared_counts(self.obs.point, self.obs.kf, np.asarray(point_ids, np.int64),
                                 self.points.capacity, len(self.kf_pyr))
         counts[exclude] = 0
         order = np.argsort(-counts, kind="stable")

@@ -7,28 +7,64 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from vo.se3 import adjoint, exp_se3, plane_jacobian, transform
+from vo.se3 import adjoint, exp_se3, inv_se3, plane_jacobian, transform
 
 TUKEY_C = 4.6851
 MAD_TO_SIGMA = 1.4826
 
 
 @numba.njit(cache=True, nogil=True)
-def _residuals(pos_w, obs, scale, T_c_w, err):
-    """Fill err (N, 2) with level-scaled errors obs - proj(T_c_w pos_w); False if behind."""
+def depth_whitening(T_c_w, kf_T_c_w, host, f, rho, sigma, pixel_sigma):
+    """Per point a 2x2 matrix whitening its reprojection error for the depth uncertainty:
+    the error along the projected inverse-depth interval rho +- sigma is down-weighted by
+    1 / sqrt(1 + (spread / pixel_sigma)^2); across it the weight stays 1."""
+    n = host.shape[0]
+    A = np.zeros((n, 2, 2))
+    for i in range(n):
+        A[i, 0, 0] = 1.0
+        A[i, 1, 1] = 1.0
+        T = T_c_w @ inv_se3(kf_T_c_w[host[i]])
+        near = rho[i] + sigma[i]
+        far = max(rho[i] - sigma[i], 1e-6)
+        X1, Y1, Z1 = transform(T, f[i, 0] / near, f[i, 1] / near, f[i, 2] / near)
+        X2, Y2, Z2 = transform(T, f[i, 0] / far, f[i, 1] / far, f[i, 2] / far)
+        if Z1 <= 1e-9 or Z2 <= 1e-9:
+            continue
+        dx = 0.5 * (X1 / Z1 - X2 / Z2)
+        dy = 0.5 * (Y1 / Z1 - Y2 / Z2)
+        spread = np.sqrt(dx * dx + dy * dy)
+        if spread < 1e-12:
+            continue
+        ex = dx / spread
+        ey = dy / spread
+        k = spread / pixel_sigma
+        beta = 1.0 - 1.0 / np.sqrt(1.0 + k * k)
+        A[i, 0, 0] -= beta * ex * ex
+        A[i, 0, 1] -= beta * ex * ey
+        A[i, 1, 0] -= beta * ey * ex
+        A[i, 1, 1] -= beta * ey * ey
+    return A
+
+
+@numba.njit(cache=True, nogil=True)
+def _residuals(pos_w, obs, scale, whiten, T_c_w, err):
+    """Fill err (N, 2) with whitened, level-scaled errors obs - proj(T_c_w pos_w)."""
     for i in range(pos_w.shape[0]):
         X, Y, Z = transform(T_c_w, pos_w[i, 0], pos_w[i, 1], pos_w[i, 2])
         if Z <= 1e-9:
             err[i, 0] = 1e3
             err[i, 1] = 1e3
             continue
-        err[i, 0] = (obs[i, 0] - X / Z) * scale[i]
-        err[i, 1] = (obs[i, 1] - Y / Z) * scale[i]
+        ex = (obs[i, 0] - X / Z) * scale[i]
+        ey = (obs[i, 1] - Y / Z) * scale[i]
+        err[i, 0] = whiten[i, 0, 0] * ex + whiten[i, 0, 1] * ey
+        err[i, 1] = whiten[i, 1, 0] * ex + whiten[i, 1, 1] * ey
 
 
 @numba.njit(cache=True, nogil=True)
-def optimize_pose(pos_w, obs, level, T_c_w, iterations, sigma_floor):
-    """Refine T_c_w from world points pos_w observed at normalised coordinates obs.
+def optimize_pose(pos_w, obs, level, whiten, T_c_w, iterations, sigma_floor):
+    """Refine T_c_w from world points pos_w observed at normalised coordinates obs, errors
+    whitened by the 2x2 matrices `whiten` (see depth_whitening).
 
     Returns (T_c_w, H, sigma, err_norm): the normal matrix of the last iteration (twist in
     the camera frame, left perturbation), the robust residual scale and per-match errors.
@@ -41,8 +77,9 @@ def optimize_pose(pos_w, obs, level, T_c_w, iterations, sigma_floor):
     norms = np.empty(n)
     T = T_c_w.copy()
     J = np.zeros((2, 6))
+    Jw = np.zeros((2, 6))
     H = np.zeros((6, 6))
-    _residuals(pos_w, obs, scale, T, err)
+    _residuals(pos_w, obs, scale, whiten, T, err)
     for i in range(n):
         norms[i] = np.sqrt(err[i, 0] ** 2 + err[i, 1] ** 2)
     sigma = max(MAD_TO_SIGMA * np.median(norms), sigma_floor)
@@ -57,17 +94,19 @@ def optimize_pose(pos_w, obs, level, T_c_w, iterations, sigma_floor):
             wgt = (1.0 - (e / c) ** 2) ** 2
             X, Y, Z = transform(T, pos_w[i, 0], pos_w[i, 1], pos_w[i, 2])
             plane_jacobian(X, Y, Z, J)
+            W = whiten[i]
             for a in range(6):
-                ja0 = J[0, a] * scale[i]
-                ja1 = J[1, a] * scale[i]
-                b[a] += wgt * (ja0 * err[i, 0] + ja1 * err[i, 1])
+                Jw[0, a] = (W[0, 0] * J[0, a] + W[0, 1] * J[1, a]) * scale[i]
+                Jw[1, a] = (W[1, 0] * J[0, a] + W[1, 1] * J[1, a]) * scale[i]
+            for a in range(6):
+                b[a] += wgt * (Jw[0, a] * err[i, 0] + Jw[1, a] * err[i, 1])
                 for q in range(6):
-                    H[a, q] += wgt * (ja0 * J[0, q] + ja1 * J[1, q]) * scale[i]
+                    H[a, q] += wgt * (Jw[0, a] * Jw[0, q] + Jw[1, a] * Jw[1, q])
         if abs(np.linalg.det(H)) < 1e-30:
             break
         xi = np.linalg.solve(H, b)
         T = exp_se3(xi) @ T
-        _residuals(pos_w, obs, scale, T, err)
+        _residuals(pos_w, obs, scale, whiten, T, err)
         if np.sqrt(xi @ xi) < 1e-10:
             break
     for i in range(n):

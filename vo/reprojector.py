@@ -6,8 +6,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from calib.camera import project_point
-from vo.matcher import match_direct
+from calib.camera import project_point, unproject_pixel
+from vo.matcher import match_direct, match_epipolar
 from vo.se3 import inv_se3, transform
 
 
@@ -32,10 +32,51 @@ def project_visible(params, T_c_w, pos_w, idx, width, height, margin):
 
 
 @numba.njit(cache=True, nogil=True)
-def match_in_cells(params, order, px, cell, T_c_w, host, hu, hv, hlevel, f, rho, kf_pyr,
-                   kf_T_c_w, pyr_off, pyr_w, pyr_h, cur_flat, max_level, max_matches,
-                   iterations):
+def closest_views(params, idx, pos_w, host, hu, hv, hlevel, host_only, start, order, obs_kf,
+                  obs_uv, obs_level, kf_T_c_w, cur_centre):
+    """Per point, the keyframe observation whose viewing ray is closest to the current one
+    (the host's own detection included; only the host where host_only): slot, level-0 pixel,
+    level, bearing, ray depth."""
+    n = idx.shape[0]
+    slot = np.empty(n, dtype=np.int64)
+    uv = np.empty((n, 2))
+    level = np.empty(n, dtype=np.int64)
+    f = np.empty((n, 3))
+    depth = np.empty(n)
+    for k in range(n):
+        p = idx[k]
+        P = pos_w[p]
+        rc = P - cur_centre
+        rc /= np.sqrt(rc @ rc)
+        best = -2.0
+        n_obs = 0 if host_only[k] else start[p + 1] - start[p]
+        for j in range(-1, n_obs):
+            if j < 0:
+                s, u, v, lv = host[k], hu[k], hv[k], hlevel[k]
+            else:
+                o = order[start[p] + j]
+                s, u, v, lv = obs_kf[o], obs_uv[o, 0], obs_uv[o, 1], obs_level[o]
+            T = kf_T_c_w[s]
+            X = T[:3, :3] @ P + T[:3, 3]
+            r = X @ T[:3, :3]  # ray from the keyframe centre to P, in the world
+            c = (r @ rc) / np.sqrt(r @ r)
+            if c > best:
+                best = c
+                slot[k], uv[k, 0], uv[k, 1], level[k] = s, u, v, lv
+                depth[k] = np.sqrt(X @ X)
+        f[k, 0], f[k, 1], f[k, 2] = unproject_pixel(params, uv[k, 0], uv[k, 1])
+    return slot, uv, level, f, depth
+
+
+@numba.njit(cache=True, nogil=True)
+def match_in_cells(params, order, px, cell, T_c_w, host, huv, hlevel, f, depth, rho, sigma,
+                   search, kf_pyr, kf_T_c_w, pyr_off, pyr_w, pyr_h, cur_flat, corners,
+                   max_level, max_matches, iterations, margin, threshold):
     """Try points in `order` (grouped by cell, best first); the first success closes its cell.
+
+    Points flagged `search` (uncertain depth) are searched along their epipolar segment
+    (rho +- 2 sigma) among the FAST `corners` (x, y, xn, yn, row_start); the others are
+    aligned directly at their predicted position.
 
     Returns (matched positions into order's arrays, u, v, level, attempted mask).
     """
@@ -54,10 +95,17 @@ def match_in_cells(params, order, px, cell, T_c_w, host, hu, hv, hlevel, f, rho,
         attempted[k] = True
         s = host[k]
         T_cur_ref = T_c_w @ inv_se3(kf_T_c_w[s])
-        u, v, level, ok = match_direct(params, kf_pyr[s], pyr_off, pyr_w, pyr_h, hu[k], hv[k],
-                                       hlevel[k], f[k], 1.0 / rho[k], T_cur_ref, cur_flat,
-                                       pyr_off, pyr_w, pyr_h, px[k, 0], px[k, 1], max_level,
-                                       iterations)
+        if search[k]:
+            u, v, level, ok = match_epipolar(
+                params, kf_pyr[s], pyr_off, pyr_w, pyr_h, huv[k, 0], huv[k, 1], hlevel[k], f[k],
+                rho[k], sigma[k], T_cur_ref, cur_flat, pyr_off, pyr_w, pyr_h, corners[0],
+                corners[1], corners[2], corners[3], corners[4], min(max_level, 2), margin,
+                threshold, iterations)
+        else:
+            u, v, level, ok = match_direct(
+                params, kf_pyr[s], pyr_off, pyr_w, pyr_h, huv[k, 0], huv[k, 1], hlevel[k], f[k],
+                depth[k], T_cur_ref, cur_flat, pyr_off, pyr_w, pyr_h, px[k, 0], px[k, 1],
+                max_level, iterations)
         if ok:
             done[cell[k]] = True
             out_k[m] = k
@@ -83,23 +131,34 @@ class Reprojector:
         return (px[:, 1] // self.cell).astype(np.int64) * self.cols + (
             px[:, 0] // self.cell).astype(np.int64)
 
-    def run(self, params, frame, pts, idx: np.ndarray, kf_pyr, kf_T_c_w, max_level: int,
-            max_matches: int, iterations: int):
+    def run(self, params, frame, pts, obs, idx: np.ndarray, search: np.ndarray, kf_pyr,
+            kf_T_c_w, config):
         """Match points `idx` of store `pts` in `frame` (pose T_c_w set to its prior).
 
         Returns (point ids, uv (M, 2), levels, n_visible, n_attempts, attempted point ids).
         """
         px, vis = project_visible(params, frame.T_c_w, pts.pos_w, idx, self.width, self.height,
                                   8.0)
-        idx, px = idx[vis], px[vis]
+        idx, px, search = idx[vis], px[vis], search[vis]
         if len(idx) == 0:
             empty = np.zeros(0, dtype=np.int64)
             return empty, np.zeros((0, 2)), empty, 0, 0, empty
         cell = self.cell_of(px)
         order = np.lexsort((-pts.n_found[idx], self.cell_rank[cell]))
+        start, obs_order = obs.by_point(pts.capacity)
+        slot, ref_uv, ref_level, f, depth = closest_views(
+            params, idx, pts.pos_w, pts.host[idx], pts.u[idx], pts.v[idx], pts.level[idx], search,
+            start, obs_order, obs.kf, obs.uv, obs.level, kf_T_c_w, frame.position)
         pyr = frame.pyr
+        if search.any():
+            c = frame.corners(config.fast_threshold)
+            corners = (c.x, c.y, c.xn, c.yn, c.row_start)
+        else:
+            corners = (np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0),
+                       np.zeros((1, 1), dtype=np.int64))
         k, uv, level, attempted = match_in_cells(
-            params, order, px, cell, frame.T_c_w, pts.host[idx], pts.u[idx], pts.v[idx],
-            pts.level[idx], pts.f[idx], pts.rho[idx], kf_pyr, kf_T_c_w, pyr.offsets,
-            pyr.widths, pyr.heights, pyr.flat, max_level, max_matches, iterations)
+            params, order, px, cell, frame.T_c_w, slot, ref_uv, ref_level, f, depth,
+            pts.rho[idx], pts.sigma[idx], search, kf_pyr, kf_T_c_w, pyr.offsets, pyr.widths,
+            pyr.heights, pyr.flat, corners, config.pyramid_levels - 1, config.max_matches,
+            config.align2d_iterations, config.epipolar_margin_px, config.zmssd_threshold)
         return idx[k], uv, level, len(idx), int(attempted.sum()), idx[attempted]

@@ -17,12 +17,13 @@ from calib.camera import CameraModel
 from calib.errors import InputError
 from vo import sparse_align
 from vo.config import TrackerConfig
+from vo.depth_filter import converged
 from vo.frame import Frame
 from vo.initialization import Initializer, InitialMap
 from vo.map import CANDIDATE, CONVERGED, Map
 from vo.mapping import Mapper
 from vo.matcher import inverse_depth_sigma
-from vo.pose_optimizer import optimize_pose, pose_covariance
+from vo.pose_optimizer import depth_whitening, optimize_pose, pose_covariance
 from vo.quality import LostCounter, classify
 from vo.reprojector import Reprojector
 from vo.result import FrameResult
@@ -157,9 +158,12 @@ class Tracker:
             ids = pts.add(slot, init.px_ref[:, 0], init.px_ref[:, 1], level, init.f_ref, rho,
                           sigma, np.full(n, 2.0 * rho.max()), self.config.seed_a,
                           self.config.seed_b, np.eye(4))
-            pts.status[ids] = CONVERGED
-            self.map.add_observations(slot, ids)
+            done = converged(rho, sigma, pts.pos_w[ids], np.zeros(3), cur.position,
+                             self.config.convergence_L)
+            pts.status[ids[done]] = CONVERGED
+            pts.n_updates[ids[~done]] = self.config.candidate_min_updates
             ref.set_features(ids, init.px_ref, level)
+            self.map.obs.add(slot, ids, init.px_ref, level)
             cur.set_features(ids, init.px_cur, level.copy())
             self.map.add_keyframe(cur)
         self.last = cur
@@ -204,22 +208,23 @@ class Tracker:
         self.motion = frame.T_c_w @ inv_se3(last.T_c_w)
         self.last = frame
         self.frames_since_kf += 1
-        keyframe = quality == "good" and self._need_keyframe(n_visible)
+        n_seen = int(inlier.sum()) if cfg.kf_count_inliers else n_visible
+        keyframe = quality == "good" and self._need_keyframe(n_seen)
         if keyframe:
             self.frames_since_kf = 0
-            self.kf_visible = n_visible
+            self.kf_visible = n_seen
         result.T_w_c = frame.T_w_c
         result.covariance = pose_covariance(H, sigma, result.T_w_c)
         result.n_inliers = int(inlier.sum())
         return result, keyframe
 
-    def _need_keyframe(self, n_visible: int) -> bool:
+    def _need_keyframe(self, n_seen: int) -> bool:
         """Keyframe policy of 6.6: enough frames and points lost, or too many points lost."""
         cfg = self.config
-        if n_visible < (1.0 - cfg.lost_points_ratio) * self.kf_visible:
+        if n_seen < (1.0 - cfg.lost_points_ratio) * self.kf_visible:
             return True
         return (self.frames_since_kf >= cfg.kf_min_frames
-                and n_visible < cfg.kf_points_ratio * self.kf_visible)
+                and n_seen < cfg.kf_points_ratio * self.kf_visible)
 
     def _on_lost(self) -> None:
         """Lost after consecutive bad frames: the seam for relocalisation (6.9); for now a new
@@ -253,17 +258,20 @@ class Tracker:
         if cfg.track_candidates:
             usable |= (pts.status == CANDIDATE) & (pts.n_updates >= cfg.candidate_min_updates)
         idx = np.flatnonzero(usable)
-        return self.reprojector.run(self.camera.params, frame, pts, idx, self.map.kf_pyr,
-                                    self.map.kf_T_c_w, cfg.pyramid_levels - 1, cfg.max_matches,
-                                    cfg.align2d_iterations)
+        search = pts.status[idx] == CANDIDATE
+        return self.reprojector.run(self.camera.params, frame, pts, self.map.obs, idx, search,
+                                    self.map.kf_pyr, self.map.kf_T_c_w, cfg)
 
     def _optimize(self, frame: Frame, ids: np.ndarray, uv: np.ndarray, levels: np.ndarray):
         """Pose refinement from matches; returns (T_c_w, H, sigma, per-match error)."""
         f = self.camera.unproject(uv)
         obs = np.ascontiguousarray(f[:, :2] / f[:, 2:])
         focal = float(np.sqrt(self.camera.fx * self.camera.fy))
-        return optimize_pose(np.ascontiguousarray(self.map.points.pos_w[ids]), obs,
-                             np.ascontiguousarray(levels, dtype=np.int64), frame.T_c_w,
+        pts = self.map.points
+        whiten = depth_whitening(frame.T_c_w, self.map.kf_T_c_w, pts.host[ids], pts.f[ids],
+                                 pts.rho[ids], pts.sigma[ids], 1.0 / focal)
+        return optimize_pose(np.ascontiguousarray(pts.pos_w[ids]), obs,
+                             np.ascontiguousarray(levels, dtype=np.int64), whiten, frame.T_c_w,
                              self.config.pose_iterations, 0.5 / focal)
 
 
