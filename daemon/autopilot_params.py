@@ -81,11 +81,12 @@ def _ardupilot(p: dict, output: str, latency_ms: float | None) -> list[Finding]:
     want("VISO_SCALE", g.get("VISO_SCALE") == 1,
          "set 1: scale is applied by the companion (mounting.scale); it would apply twice",
          "warning")
-    quality_min_ok = g.get("VISO_QUAL_MIN", 0) >= 0 if output != "vision_position" else \
-        g.get("VISO_QUAL_MIN", 0) <= 0
-    want("VISO_QUAL_MIN", quality_min_ok,
-         "set 0: VISION_POSITION_ESTIMATE has no quality (it counts as 0)"
-         if output == "vision_position" else "set 0 or more, or samples marked failed are fused")
+    if output == "vision_position":
+        want("VISO_QUAL_MIN", g.get("VISO_QUAL_MIN", 0) <= 0,
+             "set 0: VISION_POSITION_ESTIMATE has no quality (it counts as 0)")
+    else:
+        want("VISO_QUAL_MIN", g.get("VISO_QUAL_MIN", 0) >= 0,
+             "set 0 or more, or samples marked failed are fused", "warning")
     want("EK3_SRC1_POSXY", g.get("EK3_SRC1_POSXY") == 6, "set 6 (ExternalNav)")
     want("EK3_SRC1_VELXY", g.get("EK3_SRC1_VELXY") in (0, 6), "set 6 (ExternalNav) or 0")
     want("EK3_SRC1_POSZ", g.get("EK3_SRC1_POSZ") in (1, 2, 6),

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import sys
 import time
 from collections import deque
 from collections.abc import Callable
@@ -35,6 +36,9 @@ log = logging.getLogger("sdvl.service")
 HOUSEKEEPING_S = 0.05
 NO_FRAMES_S = 1.0  # no processed frame for this long: the camera is gone
 THREAD_JOIN_S = 0.7
+# A waiting thread gets the GIL within this time (Python's default is 5 ms): a frame or an
+# estimate handed between capture, tracking and the loop must not wait for the mapping thread.
+GIL_SWITCH_INTERVAL_S = 0.0005
 SEVERITY = {"good": mavlink2.MAV_SEVERITY_INFO, "initializing": mavlink2.MAV_SEVERITY_INFO,
             "insufficient": mavlink2.MAV_SEVERITY_WARNING, "bad": mavlink2.MAV_SEVERITY_WARNING,
             "lost": mavlink2.MAV_SEVERITY_CRITICAL, "no camera": mavlink2.MAV_SEVERITY_CRITICAL}
@@ -94,6 +98,7 @@ class Service:
         """Serve until stopped; 0 on a clean stop, 2 on bad input found late, 1 on a crash."""
         self._loop = asyncio.get_running_loop()
         self._stop = asyncio.Event()
+        sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
         self.link.start()
         slot = LatestSlot()
         backoff = (self.cfg.camera.reconnect_min_s, self.cfg.camera.reconnect_max_s)

@@ -23,6 +23,7 @@ class TrackedFrame:
     t_capture: float
     result: object  # vo.result.FrameResult
     estimate: VisionEstimate | None
+    t_start: float  # monotonic time tracking of this frame started
     track_s: float  # tracker.process wall time
     t_done: float  # monotonic time the estimate was ready
 
@@ -61,12 +62,13 @@ class TrackingThread(threading.Thread):
                 continue
             if self.tracker is None:
                 self.tracker = self.make_tracker(frame)
+            t_start = time.monotonic()
             start = time.perf_counter()
             result = self.tracker.process(frame.image, frame.t_source)
             track_s = time.perf_counter() - start
             estimate = self.estimator.on_frame(result, frame.t_capture)
             self.deliver(TrackedFrame(frame.index, frame.t_source, frame.t_capture, result,
-                                      estimate, track_s, time.monotonic()))
+                                      estimate, t_start, track_s, time.monotonic()))
 
     def stop(self) -> None:
         """Finish after the frame in hand."""

@@ -18,7 +18,7 @@ EXIT_USER_ERROR = 2
 COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("daemon.run_command", "the companion service: camera -> tracker -> MAVLink"),
     "check-autopilot": ("daemon.check_autopilot_command", "check autopilot parameters for vision"),
-    "bench-latency": ("daemon.bench_latency_command", "capture-to-send latency vs tracking time"),
+    "bench-latency": ("sim.bench_latency_command", "capture-to-send latency vs tracking time"),
     "eval": ("sim.eval_command", "score an estimated trajectory against ground truth (ATE, RPE)"),
     "track": ("sim.track_command", "run the SDVL tracker over a sequence: accuracy and timing"),
     "calibrate": ("calib.calibrate_command", "calibrate a camera; convert calibration files"),

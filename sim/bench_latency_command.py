@@ -1,0 +1,153 @@
+"""`sdvl bench-latency`: how much the service adds to tracking between capture and the wire.
+
+Runs the whole service (real tracker, capture thread, asyncio link) at the camera's rate against
+the simulated autopilot over UDP loopback and prints, per stage, the median, p95 and p99 in
+milliseconds: waiting for the tracker, tracking, capture-to-send and capture-to-arrival at the
+autopilot. The target: capture-to-send p99 within 5 ms of the tracking p99 at 30 fps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import multiprocessing
+import multiprocessing.connection
+import time
+
+import numpy as np
+
+from daemon.camera import SequenceSource, TestPatternSource
+from daemon.config import Config, load_config, replace
+from daemon.run_command import camera_model, setup_logging, tracker_factory
+from daemon.service import Service
+from daemon.tracking import TrackedFrame
+from sim.autopilot import SimAutopilot, SimOptions
+
+TARGET_MS = 5.0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of `sdvl bench-latency`."""
+    parser.add_argument("--sequence", default=None,
+                        help="sequence folder or video played in real time (default: the "
+                             "built-in test pattern)")
+    parser.add_argument("--fps", type=float, default=30.0,
+                        help="test-pattern frame rate (default 30)")
+    parser.add_argument("--frames", type=int, default=600, help="frames to measure (default 600)")
+    parser.add_argument("--warmup", type=int, default=30,
+                        help="first frames left out (compilation, map start; default 30)")
+    parser.add_argument("--config", default=None, help="service config (tracker, mounting)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+class Recorder:
+    """Per-frame timings from the service's on_tracked hook."""
+
+    def __init__(self) -> None:
+        self.rows: list[dict] = []
+
+    def __call__(self, tf: TrackedFrame, sent: bool) -> None:
+        now = time.monotonic()
+        self.rows.append({"t_capture": tf.t_capture, "wait": tf.t_start - tf.t_capture,
+                          "track": tf.track_s, "sent": sent,
+                          "send": now - tf.t_capture if sent else None})
+
+
+def stats_ms(values: list[float]) -> dict:
+    """median, p95, p99 in milliseconds."""
+    a = np.asarray(values, dtype=np.float64) * 1e3
+    if a.size == 0:
+        return {"n": 0, "median": None, "p95": None, "p99": None}
+    return {"n": int(a.size), "median": float(np.median(a)),
+            "p95": float(np.percentile(a, 95)), "p99": float(np.percentile(a, 99))}
+
+
+async def measure(service: Service, recorder: Recorder, frames: int) -> None:
+    """Run the service until `frames` frames were tracked or the source ended."""
+    task = asyncio.create_task(service.run())
+    while not task.done() and len(recorder.rows) < frames:
+        await asyncio.sleep(0.1)
+    service.stop()
+    await task
+
+
+def autopilot_process(conn: multiprocessing.connection.Connection) -> None:
+    """The simulated autopilot in its own process (a real one does not share our GIL): sends
+    its URL, then on request the ODOMETRY (stamp, arrival) pairs it received."""
+    with SimAutopilot(SimOptions()) as sim:
+        conn.send(sim.url)
+        conn.recv()
+        conn.send([(r.msg.time_usec / 1e6, r.t) for r in sim.messages("ODOMETRY")])
+
+
+def report(recorder: Recorder, received: list, warmup: int, service: Service) -> dict:
+    """The numbers, frames after the warm-up only."""
+    rows = recorder.rows[warmup:]
+    first = rows[0]["t_capture"] if rows else float("inf")
+    arrivals = [arrival - stamp for stamp, arrival in received if stamp >= first]
+    sent = [r for r in rows if r["sent"]]
+    out = {
+        "frames": len(rows), "sent": len(sent),
+        "dropped_by_capture": service.capture.slot.dropped if service.capture else 0,
+        "wait_for_tracker_ms": stats_ms([r["wait"] for r in rows]),
+        "tracking_ms": stats_ms([r["track"] for r in rows]),
+        "tracking_of_sent_ms": stats_ms([r["track"] for r in sent]),
+        "capture_to_send_ms": stats_ms([r["send"] for r in sent]),
+        "service_overhead_ms": stats_ms([r["send"] - r["wait"] - r["track"] for r in sent]),
+        "capture_to_arrival_ms": stats_ms(arrivals),
+    }
+    if sent:
+        out["p99_difference_ms"] = (out["capture_to_send_ms"]["p99"]
+                                    - out["tracking_of_sent_ms"]["p99"])
+        out["within_target"] = out["p99_difference_ms"] <= TARGET_MS
+    return out
+
+
+def print_report(r: dict) -> None:
+    print(f"frames measured {r['frames']}, vision messages sent {r['sent']}, "
+          f"dropped by capture {r['dropped_by_capture']}")
+    print(f"{'stage':28} {'median':>8} {'p95':>8} {'p99':>8}   ms")
+    for key in ("wait_for_tracker_ms", "tracking_ms", "tracking_of_sent_ms",
+                "capture_to_send_ms", "service_overhead_ms", "capture_to_arrival_ms"):
+        s = r[key]
+        if s["n"]:
+            print(f"{key[:-3]:28} {s['median']:8.2f} {s['p95']:8.2f} {s['p99']:8.2f}")
+    if "p99_difference_ms" in r:
+        verdict = "within" if r["within_target"] else "OVER"
+        print(f"capture-to-send p99 - tracking p99 = {r['p99_difference_ms']:.2f} ms "
+              f"({verdict} the {TARGET_MS:g} ms target)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Entry point of `sdvl bench-latency`."""
+    config = load_config(args.config) if args.config else Config()
+    setup_logging("warning")
+    if args.sequence:
+        from sim.datasets import open_sequence
+
+        source = SequenceSource(open_sequence(args.sequence), realtime=True)
+    else:
+        source = TestPatternSource(320, 240, args.fps)
+    conn, child_conn = multiprocessing.Pipe()
+    autopilot = multiprocessing.Process(target=autopilot_process, args=(child_conn,),
+                                        daemon=True)
+    autopilot.start()
+    try:
+        url = conn.recv()
+        config = replace(config, mavlink={"link": url, "output": "odometry"},
+                         camera={"source": "testpattern", "calibration": ""})
+        make_tracker = tracker_factory(config, camera_model(config.camera, source))
+        recorder = Recorder()
+        service = Service(config, source, make_tracker, on_tracked=recorder)
+        asyncio.run(measure(service, recorder, args.frames + args.warmup))
+        time.sleep(0.2)
+        conn.send("stop")
+        result = report(recorder, conn.recv(), args.warmup, service)
+    finally:
+        autopilot.join(5.0)
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        print_report(result)
+    return 0
