@@ -163,6 +163,7 @@ class FusionEstimator:
             sample = dataclasses.replace(sample, t=t)
             if isinstance(sample, Attitude):
                 self.attitude.add(sample)
+                self.timeline.add(t, "attitude", None)  # late ones replay what used it
             elif isinstance(sample, Imu):
                 self._add_imu(sample)
             elif isinstance(sample, Range) and self.cfg.use_rangefinder:
@@ -188,7 +189,7 @@ class FusionEstimator:
         if event.kind == "frame":
             self._apply_frame(event.t, event.data)
             return
-        if f.t is None:
+        if f.t is None or event.kind == "attitude":
             return
         self._propagate(event.t)
         if event.kind == "imu":

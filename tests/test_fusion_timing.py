@@ -1,0 +1,74 @@
+"""Time handling: late and out-of-order autopilot messages, the TIMESYNC offset, stale frames."""
+
+from __future__ import annotations
+
+import fusion_helpers as fh
+import numpy as np
+import pytest
+
+from daemon.config import MountingConfig
+from daemon.fusion import FusionConfig, FusionEstimator
+from vo.result import FrameResult
+
+
+@pytest.fixture(scope="module")
+def flight() -> fh.Flight:
+    return fh.simulate(truth=fh.survey_flight(legs=1), seed=5)
+
+
+def final_state(flight: fh.Flight, offset: float | None = None) -> tuple:
+    estimator = FusionEstimator(FusionConfig(), MountingConfig(), fh.link_config())
+    estimator.set_clock_offset(offset)
+    out = fh.run(flight, estimator)
+    return estimator, out
+
+
+def with_messages(flight: fh.Flight, messages: list) -> fh.Flight:
+    return fh.Flight(flight.truth, messages, flight.frames)
+
+
+def test_late_messages_are_fused_by_replaying_the_filter(flight: fh.Flight) -> None:
+    on_time, _ = final_state(flight, offset=fh.BOOT_OFFSET)
+    rng = np.random.default_rng(2)
+    late = [(arrival + (0.3 if rng.random() < 0.2 else 0.0), msg)
+            for arrival, msg in flight.messages]
+    late.sort(key=lambda item: item[0])
+    delayed, out = final_state(with_messages(flight, late), offset=fh.BOOT_OFFSET)
+    assert delayed.timeline.replays > 10
+    assert delayed.timeline.dropped_late < 5  # only those from before the first frame
+    assert delayed.filter.x == pytest.approx(on_time.filter.x, abs=0.02)
+    assert fh.score(flight, out, 1.5).position_pct < 3.0
+
+
+def test_arrival_order_does_not_matter_within_a_frame(flight: fh.Flight) -> None:
+    in_order, _ = final_state(flight, offset=fh.BOOT_OFFSET)
+    swapped = list(flight.messages)
+    for k in range(0, len(swapped) - 1, 2):
+        swapped[k], swapped[k + 1] = swapped[k + 1], swapped[k]
+    shuffled, _ = final_state(with_messages(flight, swapped), offset=fh.BOOT_OFFSET)
+    assert shuffled.filter.x == pytest.approx(in_order.filter.x, abs=0.02)
+
+
+def test_messages_older_than_the_history_are_dropped_and_counted(flight: fh.Flight) -> None:
+    stale = [(arrival + (1.5 if k % 50 == 0 else 0.0), msg)
+             for k, (arrival, msg) in enumerate(flight.messages)]
+    stale.sort(key=lambda item: item[0])
+    estimator, out = final_state(with_messages(flight, stale))
+    assert estimator.timeline.dropped_late + estimator.dropped_stamps > 0
+    assert fh.score(flight, out, 1.5).position_pct < 3.0
+
+
+def test_timesync_offset_and_arrival_estimate_agree(flight: fh.Flight) -> None:
+    _, estimated = final_state(flight)
+    _, synced = final_state(flight, offset=fh.BOOT_OFFSET)
+    a, b = fh.score(flight, estimated, 1.5), fh.score(flight, synced, 1.5)
+    assert a.position_pct < 3.0 and b.position_pct < 3.0
+    assert abs(a.position_rmse_m - b.position_rmse_m) < 0.1
+
+
+def test_a_frame_older_than_the_last_one_is_not_published(flight: fh.Flight) -> None:
+    estimator, out = final_state(flight)
+    t_last = out[-1][0]
+    result = flight.frames[-2][1]
+    assert estimator.on_frame(result, t_last - 0.5) is None
+    assert estimator.on_frame(FrameResult(0.0, None, "lost"), t_last + 0.1) is None
