@@ -107,6 +107,9 @@ class Service:
         self.tracking = TrackingThread(slot, self.make_tracker, self.estimator,
                                        deliver=lambda tf: self._from_thread(self._on_tracked, tf),
                                        on_end=lambda: self._from_thread(self._stop.set))
+        if not self.source.live:  # a replay as fast as possible must not outrun the link
+            while not self.link.connected and not self._stop.is_set():
+                await asyncio.sleep(HOUSEKEEPING_S)
         self.capture.start()
         self.tracking.start()
         tasks = [asyncio.create_task(coro) for coro in

@@ -1,0 +1,142 @@
+"""Frame sources: newest-only handoff, real-time and as-fast-as-possible playback, video files,
+reconnecting to a camera that is not there."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import cv2
+import numpy as np
+import pytest
+from daemon_helpers import FakeTracker, RunningService, service_config, wait_for
+
+from calib.camera import CameraModel
+from daemon.camera import CaptureThread, OpenCVSource, SequenceSource, TestPatternSource
+from daemon.frames import Frame, LatestSlot
+from sim.autopilot import SimAutopilot, SimOptions
+from sim.sequence import Sequence
+
+CAMERA = CameraModel(64, 48, 50.0, 50.0, 32.0, 24.0, "none", [])
+
+
+def tiny_sequence(n: int = 40, fps: float = 30.0) -> Sequence:
+    rng = np.random.default_rng(3)
+    images = [rng.integers(0, 255, (48, 64), dtype=np.uint8) for _ in range(n)]
+    return Sequence("tiny", CAMERA, 100.0 + np.arange(n) / fps,
+                    image_loader=lambda i: images[i])
+
+
+def test_latest_slot_drops_the_oldest_frame():
+    slot = LatestSlot()
+    image = np.zeros((2, 2), np.uint8)
+    for i in range(3):
+        slot.put(Frame(i, i, i, image))
+    assert slot.get(0.1).index == 2 and slot.dropped == 2
+    assert slot.get(0.01) is None
+    slot.close()
+    assert not slot.put(Frame(9, 9, 9, image))
+
+
+def test_latest_slot_waits_in_replay_mode():
+    slot = LatestSlot()
+    image = np.zeros((2, 2), np.uint8)
+    slot.put(Frame(0, 0, 0, image), wait=True)
+    taken = []
+    threading.Timer(0.1, lambda: taken.append(slot.get(1.0))).start()
+    start = time.monotonic()
+    slot.put(Frame(1, 1, 1, image), wait=True)  # blocks until frame 0 was taken
+    assert time.monotonic() - start > 0.05
+    assert taken[0].index == 0 and slot.get(1.0).index == 1 and slot.dropped == 0
+
+
+def replay(realtime: bool, n: int = 40) -> tuple[RunningService, SimAutopilot, list]:
+    tracked = []
+    with SimAutopilot(SimOptions(heartbeat_hz=5)) as sim:
+        run = RunningService(service_config(sim.url),
+                             source=SequenceSource(tiny_sequence(n), realtime=realtime),
+                             on_tracked=lambda tf, sent: tracked.append(tf))
+        run.thread.join(10.0)  # a finite source ends the service by itself
+        assert not run.thread.is_alive()
+    return run, sim, tracked
+
+
+def test_fast_replay_tracks_every_frame_and_ends():
+    run, _, tracked = replay(realtime=False)
+    assert run.exit_code == 0
+    assert [tf.frame_index for tf in tracked] == list(range(40))
+    assert [tf.t_source for tf in tracked] == list(100.0 + np.arange(40) / 30.0)
+    assert run.service.capture.slot.dropped == 0
+    assert run.tracker.closed
+
+
+def test_realtime_replay_plays_at_the_sequence_timestamps():
+    run, sim, tracked = replay(realtime=True)
+    assert run.exit_code == 0 and len(tracked) == 40
+    captures = np.array([tf.t_capture for tf in tracked])
+    sources = np.array([tf.t_source for tf in tracked])
+    assert np.allclose(np.diff(captures), np.diff(sources), atol=0.015)
+    stamps = np.array([r.msg.time_usec for r in sim.messages("ODOMETRY")]) / 1e6
+    assert len(stamps) >= 35
+    assert (len(stamps) - 1) / (stamps[-1] - stamps[0]) == pytest.approx(30.0, rel=0.10)
+
+
+def test_video_file_source(tmp_path):
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (64, 48))
+    rng = np.random.default_rng(5)
+    for _ in range(10):
+        writer.write(rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+    writer.release()
+    source = OpenCVSource(str(path), realtime=False)
+    assert source.finite and not source.live
+    source.open()
+    frames = []
+    while (item := source.read()) is not None:
+        frames.append(item)
+    source.close()
+    assert len(frames) == 10
+    assert frames[0][2].shape == (48, 64) and frames[0][2].dtype == np.uint8
+    assert np.allclose(np.diff([f[0] for f in frames]), 1 / 25.0, atol=1e-3)
+
+
+def test_missing_device_retries_with_backoff():
+    slot = LatestSlot()
+    states = []
+    thread = CaptureThread(OpenCVSource("/dev/video-sdvl-missing"), slot, (0.02, 0.08),
+                           on_state=states.append)
+    start = time.monotonic()
+    thread.start()
+    assert wait_for(lambda: len(states) >= 4, 3.0)
+    thread.stop()
+    thread.join(1.0)
+    assert not thread.is_alive() and set(states) == {"no camera"}
+    assert time.monotonic() - start > 0.02 + 0.04 + 0.08  # back-off doubles up to its cap
+
+
+def test_test_pattern_paces_and_moves():
+    source = TestPatternSource(64, 48, fps=50.0)
+    source.open()
+    frames = [source.read() for _ in range(11)]
+    stamps = np.array([f[1] for f in frames])
+    assert abs((stamps[-1] - stamps[0]) / 10 - 0.02) < 0.004
+    assert not np.array_equal(frames[0][2], frames[5][2])
+    assert source.camera.width == 64
+
+
+def test_tracker_gets_source_time_and_the_estimate_capture_time():
+    """The tracker sees the sequence's own clock; MAVLink stamps use the capture clock."""
+    seen = []
+
+    class Recording(FakeTracker):
+        def process(self, image, t):
+            seen.append(t)
+            return super().process(image, t)
+
+    with SimAutopilot(SimOptions(heartbeat_hz=5)) as sim:
+        run = RunningService(service_config(sim.url), tracker=Recording(),
+                             source=SequenceSource(tiny_sequence(10), realtime=False))
+        run.thread.join(10.0)
+    assert seen[0] == 100.0
+    stamps = [r.msg.time_usec / 1e6 for r in sim.messages("ODOMETRY")]
+    assert stamps and all(abs(s - time.monotonic()) < 30 for s in stamps)
