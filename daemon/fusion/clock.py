@@ -3,9 +3,10 @@
 The offset (ours minus the autopilot's boot time) comes from TIMESYNC when the service measures
 it (`set_offset`); until then it is estimated like ArduPilot's jitter correction does: the
 smallest (arrival - remote stamp) over a sliding window belongs to the least delayed message, so
-it is the true offset plus only the smallest transport latency. A stamp that disagrees with the
-estimate by more than a second is dropped (a corrupt or very late message); several in a row
-mean the autopilot's clock changed (a reboot) and restart the estimate. Stamps in UNIX time
+it is the true offset plus only the smallest transport latency. A stamp more than a second behind
+the estimate (a corrupt or very late message) or more than 50 ms ahead of it (a corrupt stamp)
+is dropped; several such in a row mean the autopilot's clock changed (a reboot) and restart the
+estimate. Stamps in UNIX time
 (some time_usec fields) get their own offset.
 """
 
@@ -15,6 +16,7 @@ from collections import deque
 
 UNIX_EPOCH_THRESHOLD_S = 1e9  # no autopilot has been up for 31 years: such stamps are UNIX time
 JUMP_S = 1.0
+EARLY_S = 0.05  # arriving this much earlier than the best so far: a wrong stamp, or a new clock
 STRIKES_TO_RESTART = 5
 MAX_AHEAD_S = 0.05  # a stamp mapped this far after its own arrival is wrong
 
@@ -31,7 +33,7 @@ class _Domain:
     def observe(self, remote: float, arrival: float) -> bool:
         delay = arrival - remote
         current = self.offset()
-        if current is not None and abs(delay - current) > JUMP_S:
+        if current is not None and not -EARLY_S <= delay - current <= JUMP_S:
             self.strikes += 1
             if self.strikes < STRIKES_TO_RESTART:
                 return False
