@@ -19,11 +19,13 @@ def small_camera(width: int = 320, height: int = 240, focal: float = 260.0) -> C
     return CameraModel(width, height, focal, focal, (width - 1) / 2, (height - 1) / 2)
 
 
-def load_texture(data_dir: Path, name: str = "aero1.jpg", size: int = 1024) -> np.ndarray:
-    """A grey square texture from the shared data."""
+def load_texture(data_dir: Path, name: str = "aero1.jpg", size: int = 1024,
+                 blur: float = 0.0) -> np.ndarray:
+    """A grey square texture from the shared data (optionally blurred against aliasing)."""
     img = cv2.imread(str(data_dir / "textures" / name), cv2.IMREAD_GRAYSCALE)
     assert img is not None, f"texture {name} missing"
-    return cv2.resize(img, (size, size), interpolation=cv2.INTER_AREA)
+    img = cv2.resize(img, (size, size), interpolation=cv2.INTER_AREA)
+    return cv2.GaussianBlur(img, (0, 0), blur) if blur > 0 else img
 
 
 def render_plane(texture: np.ndarray, camera: CameraModel, T_c_w: np.ndarray) -> np.ndarray:

@@ -61,4 +61,4 @@ def converged(rho: np.ndarray, sigma: np.ndarray, pos_w: np.ndarray, host_centre
     cos_par = np.einsum("ij,ij->i", ray_h, ray_c) / (np.linalg.norm(ray_h, axis=1) * d)
     with np.errstate(divide="ignore", invalid="ignore"):
         L = 4.0 * sigma / (rho * rho) / d * np.abs(cos_par)
-    return (rho > 0) & (L < threshold)
+    return (rho > 0) & (threshold > L)

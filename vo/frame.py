@@ -12,6 +12,7 @@ import numba
 import numpy as np
 
 from calib.camera import CameraModel, unproject_pixel
+from vo.patch import from_level
 
 
 class Pyramid:
@@ -74,6 +75,11 @@ class Corners:
             self.row_start[level] = lo + np.searchsorted(rows, np.arange(max_h + 1), side="left")
         self.xn, self.yn = _normalised(camera.params, self.x, self.y, self.level)
 
+    def level0(self) -> tuple[np.ndarray, np.ndarray]:
+        """Corner coordinates in level-0 pixels."""
+        s = 2.0 ** self.level
+        return (self.x + 0.5) * s - 0.5, (self.y + 0.5) * s - 0.5
+
 
 @numba.njit(cache=True, nogil=True)
 def _normalised(params, x, y, level):
@@ -82,8 +88,8 @@ def _normalised(params, x, y, level):
     xn = np.empty(n)
     yn = np.empty(n)
     for i in range(n):
-        s = 2.0 ** level[i]
-        bx, by, bz = unproject_pixel(params, x[i] * s, y[i] * s)
+        bx, by, bz = unproject_pixel(params, from_level(x[i], level[i]),
+                                     from_level(y[i], level[i]))
         xn[i] = bx / bz
         yn[i] = by / bz
     return xn, yn

@@ -118,8 +118,7 @@ class Initializer:
     def set_reference(self, frame: Frame) -> bool:
         """Start from `frame` if it has enough corners; False otherwise."""
         c = frame.corners(self.config.fast_threshold)
-        s = 2.0 ** c.level
-        x, y = c.x * s, c.y * s
+        x, y = c.level0()
         keep = best_per_cell(x, y, c.score, self.config.grid_cell, self.camera.width)
         keep = keep[np.argsort(-c.score[keep])][: self.config.init_max_features]
         if len(keep) < self.config.init_min_features:

@@ -233,8 +233,7 @@ class Mapper:
         c = frame.corners(cfg.fast_threshold)
         pyr = frame.pyr
         score = shi_tomasi(pyr.flat, pyr.offsets, pyr.widths, pyr.heights, c.level, c.x, c.y)
-        s = 2.0 ** c.level
-        x, y = c.x * s, c.y * s
+        x, y = c.level0()
         cols = (self.camera.width + cfg.grid_cell - 1) // cfg.grid_cell
         rows = (self.camera.height + cfg.grid_cell - 1) // cfg.grid_cell
         occupied = np.zeros(cols * rows, dtype=bool)

@@ -11,7 +11,17 @@ import numba
 import numpy as np
 
 from calib.camera import project_point, unproject_pixel
-from vo.patch import BORDER_PATCH, HALF, PATCH_AREA, align2d, inside, warp_patch, zmssd
+from vo.patch import (
+    BORDER_PATCH,
+    HALF,
+    PATCH_AREA,
+    align2d,
+    from_level,
+    inside,
+    to_level,
+    warp_patch,
+    zmssd,
+)
 from vo.se3 import transform
 
 MIN_RHO = 1e-10
@@ -106,10 +116,9 @@ def match_direct(params, ref_flat, ref_off, ref_w, ref_h, ref_u, ref_v, ref_leve
     if not warp_patch(ref_flat, ref_off[ref_level], ref_w[ref_level], ref_h[ref_level],
                       A_ref_cur, ref_u, ref_v, ref_level, level, patch):
         return u, v, level, False
-    s = 2.0 ** level
     ul, vl, ok = align2d(cur_flat, cur_off[level], cur_w[level], cur_h[level], patch,
-                         u / s, v / s, iterations)
-    return ul * s, vl * s, level, ok
+                         to_level(u, level), to_level(v, level), iterations)
+    return from_level(ul, level), from_level(vl, level), level, ok
 
 
 @numba.njit(cache=True, nogil=True)
@@ -172,10 +181,10 @@ def match_epipolar(params, ref_flat, ref_off, ref_w, ref_h, ref_u, ref_v, ref_le
         tol = m / focal
         w = cur_w[level]
         h = cur_h[level]
-        r0 = max(0, int((vmin - m) / s))
-        r1 = min(h - 1, int((vmax + m) / s) + 1)
-        lo_u = (umin - m) / s
-        hi_u = (umax + m) / s
+        r0 = max(0, int(to_level(vmin - m, level)))
+        r1 = min(h - 1, int(to_level(vmax + m, level)) + 1)
+        lo_u = to_level(umin - m, level)
+        hi_u = to_level(umax + m, level)
         for row in range(r0, r1 + 1):
             for i in range(c_row_start[level, row], c_row_start[level, row + 1]):
                 x = cx[i]
@@ -196,7 +205,14 @@ def match_epipolar(params, ref_flat, ref_off, ref_w, ref_h, ref_u, ref_v, ref_le
     lv = best_level
     ul, vl, ok = align2d(cur_flat, cur_off[lv], cur_w[lv], cur_h[lv], best_patch, best_x, best_y,
                          iterations)
-    s = 2.0 ** lv
     if not ok or (ul - best_x) ** 2 + (vl - best_y) ** 2 > 4.0:
-        return best_x * s, best_y * s, lv, True
-    return ul * s, vl * s, lv, True
+        ul, vl = best_x, best_y
+    u0, v0 = from_level(ul, lv), from_level(vl, lv)
+    if lv > 0 and warp_patch(ref_flat, ref_off[ref_level], ref_w[ref_level], ref_h[ref_level],
+                             A_ref_cur, ref_u, ref_v, ref_level, 0, patch):
+        # a last sub-pixel step at full resolution
+        uf, vf, ok = align2d(cur_flat, cur_off[0], cur_w[0], cur_h[0], patch, u0, v0,
+                             iterations)
+        if ok and (uf - u0) ** 2 + (vf - v0) ** 2 < 4.0:
+            u0, v0 = uf, vf
+    return u0, v0, lv, True

@@ -13,6 +13,20 @@ PATCH_AREA = PATCH * PATCH
 
 
 @numba.njit(cache=True, nogil=True)
+def to_level(x, level):
+    """Level-0 pixel coordinate -> coordinate at `level` (pyrDown pixel centres)."""
+    s = 2.0 ** level
+    return (x + 0.5) / s - 0.5
+
+
+@numba.njit(cache=True, nogil=True)
+def from_level(x, level):
+    """Coordinate at `level` -> level-0 pixel coordinate."""
+    s = 2.0 ** level
+    return (x + 0.5) * s - 0.5
+
+
+@numba.njit(cache=True, nogil=True)
 def sample(flat, off, w, x, y):
     """Bilinear intensity at (x, y) of the level stored at `off` with row width `w` (no checks)."""
     ix = int(np.floor(x))
@@ -41,12 +55,14 @@ def warp_patch(flat, off, w, h, A_ref_cur, u_ref, v_ref, ref_level, search_level
     step = 2.0 ** search_level
     inv_ref = 1.0 / 2.0 ** ref_level
     half = BORDER_PATCH // 2
+    cx = to_level(u_ref, ref_level)
+    cy = to_level(v_ref, ref_level)
     for r in range(BORDER_PATCH):
         for c in range(BORDER_PATCH):
             dx = (c - half) * step
             dy = (r - half) * step
-            x = (A_ref_cur[0, 0] * dx + A_ref_cur[0, 1] * dy + u_ref) * inv_ref
-            y = (A_ref_cur[1, 0] * dx + A_ref_cur[1, 1] * dy + v_ref) * inv_ref
+            x = (A_ref_cur[0, 0] * dx + A_ref_cur[0, 1] * dy) * inv_ref + cx
+            y = (A_ref_cur[1, 0] * dx + A_ref_cur[1, 1] * dy) * inv_ref + cy
             if not inside(x, y, w, h, 0):
                 return False
             out[r, c] = sample(flat, off, w, x, y)

@@ -80,11 +80,13 @@ def optimize_pose(pos_w, obs, level, whiten, T_c_w, iterations, sigma_floor):
     Jw = np.zeros((2, 6))
     H = np.zeros((6, 6))
     _residuals(pos_w, obs, scale, whiten, T, err)
-    for i in range(n):
-        norms[i] = np.sqrt(err[i, 0] ** 2 + err[i, 1] ** 2)
-    sigma = max(MAD_TO_SIGMA * np.median(norms), sigma_floor)
-    c = TUKEY_C * sigma
+    sigma = sigma_floor
     for _ in range(iterations):
+        # robust scale re-estimated each iteration (MAD), so outliers drop out as T improves
+        for i in range(n):
+            norms[i] = np.sqrt(err[i, 0] ** 2 + err[i, 1] ** 2)
+        sigma = max(MAD_TO_SIGMA * np.median(norms), sigma_floor)
+        c = TUKEY_C * sigma
         H[:, :] = 0.0
         b = np.zeros(6)
         for i in range(n):

@@ -8,7 +8,7 @@ import numba
 import numpy as np
 
 from calib.camera import project_point
-from vo.patch import inside, sample
+from vo.patch import inside, sample, to_level
 from vo.se3 import exp_se3, plane_jacobian, transform
 
 HALF4 = 2
@@ -26,8 +26,8 @@ def reference_patches(flat, off, w, h, level, px, xyz, fx, fy):
     valid = np.zeros(n, dtype=np.bool_)
     Jp = np.zeros((2, 6))
     for i in range(n):
-        u = px[i, 0] / s
-        v = px[i, 1] / s
+        u = to_level(px[i, 0], level)
+        v = to_level(px[i, 1], level)
         if not inside(u, v, w, h, HALF4 + 2):
             continue
         valid[i] = True
@@ -49,7 +49,6 @@ def reference_patches(flat, off, w, h, level, px, xyz, fx, fy):
 @numba.njit(cache=True, nogil=True)
 def _normal_equations(params, flat, off, w, h, level, patches, jac, valid, xyz, T_cur_ref):
     """H, b, mean squared residual and pixel count of the photometric error at T_cur_ref."""
-    s = 2.0 ** level
     H = np.zeros((6, 6))
     b = np.zeros(6)
     chi2 = 0.0
@@ -61,8 +60,8 @@ def _normal_equations(params, flat, off, w, h, level, patches, jac, valid, xyz, 
         u, v = project_point(params, X, Y, Z)
         if np.isnan(u):
             continue
-        u /= s
-        v /= s
+        u = to_level(u, level)
+        v = to_level(v, level)
         if not inside(u, v, w, h, HALF4 + 1):
             continue
         k = 0

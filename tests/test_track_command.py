@@ -1,0 +1,42 @@
+"""`sdvl track`: report fields, trajectory file, config errors."""
+
+from __future__ import annotations
+
+import json
+
+from sim.cli import main
+from sim.trajectory import read_tum
+
+
+def test_track_json_and_trajectory(data_dir, tmp_path, capsys):
+    out = tmp_path / "traj.txt"
+    code = main(["track", str(data_dir / "vamr_ex01_checkerboard736"), "--max-frames", "60",
+                 "--json", "--quiet", "--out", str(out)])
+    assert code == 0
+    report = json.loads(capsys.readouterr().out)
+    for key in ("frames", "tracked", "ate_rmse_m", "track_ms_median", "track_ms_p95", "stages"):
+        assert key in report
+    assert report["frames"] == 60 and report["tracked"] >= 45
+    assert report["ate_rmse_m"] is not None and report["ate_rmse_m"] < 0.01
+    assert {"track", "align", "reproject", "pose"} <= set(report["stages"])
+    assert len(read_tum(out)) == report["tracked"]
+
+
+def test_track_text_report_by_name_with_config(data_dir, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("SDVL_DATA", str(data_dir))
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[tracker]\nmax_matches = 120\n")
+    assert main(["track", "vamr_ex01_checkerboard736", "--max-frames", "30", "--quiet",
+                 "--config", str(cfg)]) == 0
+    text = capsys.readouterr().out
+    assert "ATE RMSE" in text and "track" in text
+
+
+def test_bad_config_is_one_line_error(tmp_path, capsys, data_dir):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("max_matchez = 3\n")
+    code = main(["track", str(data_dir / "vamr_ex01_checkerboard736"), "--config", str(cfg)])
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert "max_matchez" in err and len(err.splitlines()) == 1
+    assert main(["track", str(tmp_path / "nowhere")]) == 2

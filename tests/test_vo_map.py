@@ -1,0 +1,66 @@
+"""Map storage: slot recycling is delayed, removing a keyframe drops what it hosts, the store
+stays bounded under churn; quality classification of 6.10."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calib.camera import CameraModel
+from vo.config import TrackerConfig
+from vo.frame import Frame
+from vo.map import CANDIDATE, DELETED, FREE, RELEASE_DELAY, Map
+from vo.quality import LostCounter, classify
+
+
+def _add(store, n, host=0):
+    f = np.tile([0.0, 0.0, 1.0], (n, 1))
+    return store.add(host, np.zeros(n), np.zeros(n), np.zeros(n, np.int64), f, np.ones(n),
+                     np.ones(n), np.ones(n), 10.0, 10.0, np.eye(4))
+
+
+def test_recycling_waits_and_store_stays_bounded():
+    m = Map(64, 48, 3, 5)
+    pts = m.points
+    first = _add(pts, 100)
+    assert (pts.status[first] == CANDIDATE).all()
+    pts.delete(first[:50])
+    assert (pts.status[first[:50]] == DELETED).all()
+    again = _add(pts, 50)
+    assert not np.intersect1d(again, first[:50]).size  # not reused yet
+    for _ in range(RELEASE_DELAY):
+        pts.step()
+    assert (pts.status[first[:50]] == FREE).all()
+    capacity = pts.capacity
+    for _ in range(200):  # steady churn reuses slots
+        ids = _add(pts, 40)
+        pts.delete(ids)
+        pts.step()
+    assert pts.capacity == capacity
+
+
+def test_removing_a_keyframe_drops_its_points_and_observations():
+    cam = CameraModel(64, 48, 50.0, 50.0, 31.5, 23.5)
+    m = Map(64, 48, 3, 5)
+    img = np.zeros((48, 64), np.uint8)
+    kf0 = Frame(0, 0.0, img, cam, 3)
+    slot0 = m.add_keyframe(kf0)
+    ids = _add(m.points, 20, host=slot0)
+    kf1 = Frame(1, 1.0, img, cam, 3)
+    kf1.set_features(ids[:15], np.zeros((15, 2)), np.zeros(15, np.int64))
+    slot1 = m.add_keyframe(kf1)
+    assert m.covisible(ids, exclude=slot0, min_shared=10) == [slot1]
+    m.remove_keyframe(slot0)
+    assert (m.points.status[ids] == DELETED).all()
+    m.prune_observations()
+    assert len(m.obs) == 0 and len(m) == 1
+
+
+def test_quality_as_in_thesis():
+    cfg = TrackerConfig()
+    assert classify(30, 100, cfg) == "good"  # ratio above 20 %
+    assert classify(19, 100, cfg) == "bad"  # ratio below 20 % and fewer than 20 matches
+    assert classify(25, 200, cfg) == "insufficient"
+    assert classify(0, 0, cfg) == "bad"
+    lost = LostCounter(cfg)
+    assert [lost.update(q) for q in ("bad", "bad", "good", "bad", "bad", "bad")] == [
+        False, False, False, False, False, True]

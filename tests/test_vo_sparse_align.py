@@ -1,0 +1,47 @@
+"""Sparse image alignment recovers a known SE(3) motion between two renders of a plane."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from vo_scenes import load_texture, look_down_pose, plane_depth, render_plane, small_camera
+
+from vo import sparse_align
+from vo.frame import Frame
+from vo.se3 import exp_se3, inv_se3
+
+
+@pytest.fixture(scope="module")
+def pair(data_dir):
+    cam = small_camera()
+    tex = load_texture(data_dir, blur=1.0)
+    T_ref = look_down_pose(0.0, 0.0, 1.5)
+    T_cur = look_down_pose(0.03, 0.02, 1.45, yaw=0.03, tilt=(0.02, -0.01))
+    ref = Frame(0, 0.0, render_plane(tex, cam, T_ref), cam, 5)
+    cur = Frame(1, 1.0, render_plane(tex, cam, T_cur), cam, 5)
+    rng = np.random.default_rng(1)
+    px = rng.uniform([20, 20], [300, 220], (100, 2))
+    xyz = cam.unproject(px) * plane_depth(T_ref, cam, px)[:, None]
+    return cam, ref, cur, px, xyz, T_cur @ inv_se3(T_ref)
+
+
+def _max_reprojection(cam, xyz, T_a, T_b):
+    pa = cam.project(xyz @ T_a[:3, :3].T + T_a[:3, 3])
+    pb = cam.project(xyz @ T_b[:3, :3].T + T_b[:3, 3])
+    return float(np.abs(pa - pb).max())
+
+
+@pytest.mark.parametrize("start", ["identity", "perturbed"])
+def test_alignment_recovers_motion_to_subpixel(pair, start):
+    cam, ref, cur, px, xyz, T_true = pair
+    init = np.eye(4) if start == "identity" else exp_se3(
+        np.array([0.01, -0.01, 0.0, 0.0, 0.01, 0.005])) @ T_true
+    assert _max_reprojection(cam, xyz, init, T_true) > 2.0
+    T = sparse_align.align(cam.params, ref.pyr, cur.pyr, px, xyz, init, 4, 0, 30)
+    assert _max_reprojection(cam, xyz, T, T_true) < 0.05
+
+
+def test_default_levels_get_close(pair):
+    cam, ref, cur, px, xyz, T_true = pair
+    T = sparse_align.align(cam.params, ref.pyr, cur.pyr, px, xyz, np.eye(4), 4, 2, 30)
+    assert _max_reprojection(cam, xyz, T, T_true) < 0.5

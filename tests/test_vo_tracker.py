@@ -1,0 +1,111 @@
+"""End-to-end tracker: a synthetic planar flight, bad input, threaded mode, and the first frames
+of the real VAMR checkerboard sequence."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from vo_scenes import load_texture, look_down_pose, render_plane, small_camera
+
+from calib.errors import InputError
+from sim.metrics import evaluate
+from sim.trajectory import Trajectory
+from vo.config import TrackerConfig
+from vo.tracker import Tracker
+
+N_SYNTH = 120
+
+
+def _flight(i: int) -> np.ndarray:
+    return look_down_pose(0.4 * np.sin(i * 0.03), 0.25 * np.sin(i * 0.021),
+                          1.5 + 0.1 * np.sin(i * 0.05), yaw=0.2 * np.sin(0.02 * i))
+
+
+def _run(tracker, frames):
+    t, T, results = [], [], []
+    for k, (stamp, image) in enumerate(frames):
+        r = tracker.process(image, stamp)
+        results.append(r)
+        if r.has_pose:
+            t.append(stamp)
+            T.append(r.T_w_c)
+        assert r.quality in ("initializing", "good", "insufficient", "bad", "lost"), k
+    return Trajectory.from_matrices(np.array(t), np.array(T)), results
+
+
+@pytest.fixture(scope="module")
+def synthetic(data_dir):
+    cam = small_camera()
+    tex = load_texture(data_dir)
+    poses = [_flight(i) for i in range(N_SYNTH)]
+    frames = [(float(i) / 30.0, render_plane(tex, cam, T)) for i, T in enumerate(poses)]
+    T_w_c = np.array([np.linalg.inv(T) for T in poses])
+    gt = Trajectory.from_matrices(np.array([f[0] for f in frames]), T_w_c)
+    return cam, frames, gt
+
+
+@pytest.mark.parametrize("threaded", [False, True])
+def test_synthetic_flight_is_tracked_accurately(synthetic, threaded):
+    cam, frames, gt = synthetic
+    tracker = Tracker(cam, TrackerConfig(), threaded=threaded)
+    try:
+        est, results = _run(tracker, frames)
+    finally:
+        tracker.close()
+    assert len(est) >= 0.9 * N_SYNTH
+    assert sum(r.new_segment for r in results) == 1
+    first = next(r for r in results if r.has_pose)
+    assert first.new_segment and first.keyframe
+    ev = evaluate(gt, est, "sim3")
+    assert ev.ate_rmse_m < 0.005 * gt.path_length() + 0.002
+    assert ev.rot_rmse_deg < 0.5
+    good = [r for r in results if r.has_pose]
+    for r in good:
+        assert r.covariance is not None and r.covariance.shape == (6, 6)
+        assert np.all(np.linalg.eigvalsh(r.covariance) > 0)
+        assert r.n_inliers <= r.n_matches <= r.n_attempts or r.new_segment
+        assert "track" in r.timings and "pyramid" in r.timings
+
+
+def test_sequential_runs_are_reproducible(synthetic):
+    cam, frames, _ = synthetic
+    poses = []
+    for _ in range(2):
+        tracker = Tracker(cam)
+        est, _ = _run(tracker, frames[:60])
+        poses.append(est.matrices())
+    assert np.array_equal(poses[0], poses[1])
+
+
+def test_bad_input_is_an_input_error():
+    cam = small_camera()
+    tracker = Tracker(cam)
+    with pytest.raises(InputError, match="uint8"):
+        tracker.process(np.zeros((cam.height, cam.width), np.float32), 0.0)
+    with pytest.raises(InputError, match="320x240"):
+        tracker.process(np.zeros((100, 100), np.uint8), 0.0)
+    r = tracker.process(np.zeros((cam.height, cam.width), np.uint8), 0.0)
+    assert r.quality == "initializing" and not r.has_pose
+
+
+def test_lost_tracking_restarts_a_new_segment(synthetic):
+    cam, frames, _ = synthetic
+    tracker = Tracker(cam)
+    results = [tracker.process(img, t) for t, img in frames[:40]]
+    assert results[-1].has_pose
+    blank = np.full((cam.height, cam.width), 90, np.uint8)
+    qualities = [tracker.process(blank, 2.0 + k).quality for k in range(4)]
+    assert "lost" in qualities
+    later = [tracker.process(img, 10.0 + t) for t, img in frames[40:]]
+    assert sum(r.new_segment for r in later) == 1
+
+
+def test_vamr_first_frames(data_dir):
+    from sim.datasets import open_sequence
+
+    seq = open_sequence(data_dir / "vamr_ex01_checkerboard736")
+    tracker = Tracker(seq.camera)
+    est, _ = _run(tracker, seq.frames(150))
+    assert len(est) >= 135
+    ev = evaluate(seq.groundtruth, est, "sim3")
+    assert ev.ate_rmse_m < 0.005
