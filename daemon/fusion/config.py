@@ -8,6 +8,7 @@ m/s^2, rad); `*_deg` fields are degrees.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 from calib.errors import InputError
 
@@ -16,6 +17,8 @@ from calib.errors import InputError
 class FusionConfig:
     """Defaults suit a small multirotor with a downward camera and an ArduPilot/PX4 autopilot."""
 
+    # false: the service uses the pass-through estimator (mounting.scale, no autopilot sensors)
+    enabled: bool = True
     # camera position in the body frame (FRD, metres): the lever arm between camera and IMU
     camera_x_m: float = 0.0
     camera_y_m: float = 0.0
@@ -31,7 +34,7 @@ class FusionConfig:
     # tracker pose: floor of the position noise (metres) and inflation per tracking quality
     vo_position_std_m: float = 0.02
     vo_rotation_std_deg: float = 0.5
-    vo_drift_per_m: float = 0.01  # VO position drift, metres per metre travelled (random walk)
+    vo_drift_m_per_sqrt_m: float = 0.01  # VO position random walk per sqrt(metre travelled)
     inflate_insufficient: float = 4.0  # variance factor
     inflate_bad: float = 25.0
     # autopilot attitude (ATTITUDE): roll/pitch and compass heading noise
@@ -69,8 +72,8 @@ class FusionConfig:
     quality_good_std_m: float = 0.05  # position std that earns quality 100
     rate_std_rad_s: float = 0.05
 
-    def check(self) -> None:
-        """InputError naming the first setting that makes no sense."""
+    def check(self, path: Path | None = None) -> None:
+        """InputError naming the first setting that makes no sense (in config file `path`)."""
         positive = ("scale_std_max", "heading_std_max_deg", "progress_interval_s",
                     "scale_prior_std", "initial_scale", "vo_position_std_m",
                     "vo_rotation_std_deg", "attitude_std_deg", "heading_std_deg",
@@ -80,16 +83,16 @@ class FusionConfig:
                     "quality_good_std_m", "rate_std_rad_s")
         for key in positive:
             if not getattr(self, key) > 0:
-                raise InputError(f"fusion.{key} must be > 0")
-        non_negative = ("min_aligned_s", "vo_drift_per_m", "alignment_walk_deg_per_sqrt_s",
+                raise InputError(f"fusion.{key} must be > 0", path)
+        non_negative = ("min_aligned_s", "vo_drift_m_per_sqrt_m", "alignment_walk_deg_per_sqrt_s",
                         "scale_walk_per_sqrt_s", "accel_bias_walk", "range_std_fraction",
                         "ground_walk_m_per_sqrt_s", "baro_walk_m_per_sqrt_s")
         for key in non_negative:
             if not getattr(self, key) >= 0:
-                raise InputError(f"fusion.{key} must be >= 0")
+                raise InputError(f"fusion.{key} must be >= 0", path)
         if not (self.inflate_insufficient >= 1 and self.inflate_bad >= 1):
-            raise InputError("fusion.inflate_insufficient and fusion.inflate_bad must be >= 1")
+            raise InputError("fusion.inflate_insufficient and inflate_bad must be >= 1", path)
         if not 0 < self.range_max_tilt_deg < 90:
-            raise InputError("fusion.range_max_tilt_deg must be in (0, 90)")
+            raise InputError("fusion.range_max_tilt_deg must be in (0, 90)", path)
         if self.reset_after_rejections < 1:
-            raise InputError("fusion.reset_after_rejections must be >= 1")
+            raise InputError("fusion.reset_after_rejections must be >= 1", path)

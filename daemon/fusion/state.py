@@ -189,7 +189,7 @@ class NavFilter:
         Q[VEL, VEL] = np.eye(3) * q * dt
         if imu:
             Q[BIAS, BIAS] = np.eye(3) * cfg.accel_bias_walk**2 * dt
-        Q[ANCHOR, ANCHOR] = np.eye(3) * cfg.vo_drift_per_m**2 * speed * dt
+        Q[ANCHOR, ANCHOR] = np.eye(3) * cfg.vo_drift_m_per_sqrt_m**2 * speed * dt
         Q[LOG_SCALE, LOG_SCALE] = cfg.scale_walk_per_sqrt_s**2 * dt
         Q[THETA, THETA] = np.eye(3) * np.radians(cfg.alignment_walk_deg_per_sqrt_s) ** 2 * dt
         Q[GROUND, GROUND] = cfg.ground_walk_m_per_sqrt_s**2 * dt * (1.0 + speed)
