@@ -52,6 +52,7 @@ def test_odometry_every_field(udp_run):
     assert len(odo) > 60
     stamps = np.array([r.msg.time_usec for r in odo]) / 1e6
     assert np.all(np.diff(stamps) > 0), "a duplicate or out-of-order stamp"
+    contiguous = 0
     for prev, rec in itertools.pairwise(odo):
         m = rec.msg
         assert (m.get_srcSystem(), m.get_srcComponent()) == (1, 197)
@@ -70,10 +71,12 @@ def test_odometry_every_field(udp_run):
         assert np.linalg.norm(m.q) == pytest.approx(1.0, abs=1e-6)
         assert m.q[0] >= 0
         assert (q0.inv() * q1).magnitude() == pytest.approx(0.1 * dt, abs=1e-5)
-        v_body = q1.inv().apply((p1 - p0) / dt)
-        assert np.allclose([m.vx, m.vy, m.vz], v_body, atol=1e-4)
-        rates = (q0.inv() * q1).as_rotvec() / dt
-        assert np.allclose([m.rollspeed, m.pitchspeed, m.yawspeed], rates, atol=1e-4)
+        if dt < 1.5 / 30:  # consecutive frames: velocities are exactly these differences
+            contiguous += 1
+            v_body = q1.inv().apply((p1 - p0) / dt)
+            assert np.allclose([m.vx, m.vy, m.vz], v_body, atol=1e-4)
+            rates = (q0.inv() * q1).as_rotvec() / dt
+            assert np.allclose([m.rollspeed, m.pitchspeed, m.yawspeed], rates, atol=1e-4)
         pose_cov = np.zeros((6, 6))
         pose_cov[np.triu_indices(6)] = m.pose_covariance
         expected = [SCALE**2 * 1e-4 + 0.1**2] * 3 + [1e-5 + 0.05**2] * 3
@@ -81,9 +84,12 @@ def test_odometry_every_field(udp_run):
         assert np.allclose(pose_cov - np.diag(np.diag(pose_cov)), 0, atol=1e-9)
         vel_cov = np.zeros((6, 6))
         vel_cov[np.triu_indices(6)] = m.velocity_covariance
-        vel_expected = [2 * SCALE**2 * 1e-4 / dt**2 + 0.1**2] * 3 + [2e-5 / dt**2 + 0.05**2] * 3
-        assert np.allclose(np.diag(vel_cov), vel_expected, rtol=1e-3)
+        if dt < 1.5 / 30:
+            vel_expected = ([2 * SCALE**2 * 1e-4 / dt**2 + 0.1**2] * 3
+                            + [2e-5 / dt**2 + 0.05**2] * 3)
+            assert np.allclose(np.diag(vel_cov), vel_expected, rtol=1e-3)
         assert all(np.isfinite(v) for v in [*p1, *m.q, m.vx, m.vy, m.vz, *m.pose_covariance])
+    assert contiguous >= 0.8 * (len(odo) - 1)
 
 
 def test_first_pose_is_level_with_the_autopilot(udp_run):
