@@ -43,7 +43,8 @@ class AutopilotWatch:
                                   else "connected")
                 self.alive, self.last_heartbeat = True, now
         boot_ms = getattr(msg, "time_boot_ms", None)
-        if boot_ms is not None and msg.get_srcSystem() == self.system_id:
+        source = (msg.get_srcSystem(), msg.get_srcComponent())
+        if boot_ms is not None and source == (self.system_id, self.component_id):
             if self.boot_ms is not None and boot_ms + REBOOT_BACKSTEP_MS < self.boot_ms:
                 self.reboots += 1
                 events.append("rebooted")

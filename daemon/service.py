@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import logging
+import statistics
 import sys
 import time
 from collections import deque
@@ -282,5 +284,7 @@ class Service:
         s = self.stats
         link = ("autopilot ok" if self.watch.alive else "no autopilot")
         dropped = self.capture.slot.dropped if self.capture else 0
-        return (f"{self.state}; frames {s.frames}, sent {s.sent}, dropped {dropped}; {link}"
-                + ("; origin set" if self.origin and self.origin.confirmed else ""))
+        recent = list(itertools.islice(reversed(s.send_latency_s), 100))
+        latency = f", latency {1e3 * statistics.median(recent):.0f} ms" if recent else ""
+        return (f"{self.state}; frames {s.frames}, sent {s.sent}, dropped {dropped}{latency}; "
+                f"{link}" + ("; origin set" if self.origin and self.origin.confirmed else ""))

@@ -12,6 +12,7 @@ import pytest
 from daemon_helpers import FakeTracker, RunningService, service_config, wait_for
 
 from calib.camera import CameraModel
+from calib.errors import InputError
 from daemon.camera import CaptureThread, OpenCVSource, SequenceSource, TestPatternSource
 from daemon.frames import Frame, LatestSlot
 from sim.autopilot import SimAutopilot, SimOptions
@@ -140,3 +141,22 @@ def test_tracker_gets_source_time_and_the_estimate_capture_time():
     assert seen[0] == 100.0
     stamps = [r.msg.time_usec / 1e6 for r in sim.messages("ODOMETRY")]
     assert stamps and all(abs(s - time.monotonic()) < 30 for s in stamps)
+
+
+def test_dataset_folder_and_other_sources_from_config(data_dir):
+    from daemon.config import CameraConfig
+    from daemon.run_command import camera_model, fit_camera, open_source
+
+    source = open_source(CameraConfig(source=str(data_dir / "tum_fr1_rpy"), realtime=False))
+    assert isinstance(source, SequenceSource) and not source.live and source.finite
+    camera = camera_model(CameraConfig(), source)
+    assert (camera.width, camera.height) == (640, 480)
+    source.open()
+    t, _, image = source.read()
+    assert image.shape == (480, 640) and image.dtype == np.uint8 and t > 1e9
+    assert fit_camera(camera, 320, 240).fx == camera.fx / 2
+    with pytest.raises(InputError, match="calibrate at this size"):
+        fit_camera(camera, 320, 200)
+    assert isinstance(open_source(CameraConfig(source="testpattern")), TestPatternSource)
+    device = open_source(CameraConfig(source="/dev/video0"))
+    assert isinstance(device, OpenCVSource) and device.live and not device.finite
