@@ -107,6 +107,8 @@ class TrackerOptions:
     scale: float = 0.27  # VO units per metre
     noise_m: float = 0.01
     drift_per_sqrt_m: float = 0.01
+    scale_walk_per_sqrt_s: float = 0.002
+    rot_walk_deg_per_sqrt_s: float = 0.05
     cov_std_m: float = 0.02
     rot_noise_deg: float = 0.2
     weak: tuple = ()  # (t0, t1) windows of 'insufficient' tracking
@@ -182,33 +184,37 @@ def _random_rotation(rng: np.random.Generator) -> np.ndarray:
 
 def tracker_results(truth: Truth, opt: TrackerOptions, mounting: MountingConfig,
                     rng: np.random.Generator) -> list:
-    """(ready time, FrameResult, t_capture) at the tracker's frame rate."""
+    """(ready time, FrameResult, t_capture) at the tracker's frame rate. The tracker integrates
+    the true motion in its own frame and scale, with random-walk drift of position (per metre),
+    scale and rotation (per second), plus white noise on every pose."""
     R_b_c = body_from_camera(mounting)
-    out, drift, last_p, segment = [], np.zeros(3), None, None
-    for t in np.arange(opt.start_s, truth.t[-1], 1.0 / opt.fps):
+    out, last_p, seg, dt = [], None, None, 1.0 / opt.fps
+    for t in np.arange(opt.start_s, truth.t[-1], dt):
         i = truth.at(t)
-        p_cam = truth.p[i]
-        if last_p is not None:
-            step = np.linalg.norm(p_cam - last_p)
-            drift += rng.normal(0, opt.drift_per_sqrt_m * np.sqrt(step), 3)
-        last_p = p_cam
         t_capture = t + BOOT_OFFSET
         if any(a <= t < b for a, b in opt.lost):
             out.append((t_capture + opt.delay_s, FrameResult(t, None, "lost"), t_capture))
-            segment = None
+            seg = None
             continue
-        new = segment is None
+        new = seg is None
         if new:
-            segment = (_random_rotation(rng), p_cam + drift, rng.normal(0, 2.0, 3),
-                       opt.scale * (1.0 if not out else rng.uniform(0.5, 2.0)))
-        R_w_n, origin, w0, scale = segment
+            seg = {"R_w_n": _random_rotation(rng), "p_w": rng.normal(0, 2.0, 3),
+                   "scale": opt.scale * (1.0 if not out else rng.uniform(0.5, 2.0))}
+        else:
+            step = truth.p[i] - last_p
+            walk = rng.normal(0, opt.drift_per_sqrt_m * np.sqrt(np.linalg.norm(step)), 3)
+            seg["p_w"] = seg["p_w"] + seg["scale"] * (seg["R_w_n"] @ (step + walk))
+            seg["scale"] *= np.exp(rng.normal(0, opt.scale_walk_per_sqrt_s * np.sqrt(dt)))
+            turn = np.radians(rng.normal(0, opt.rot_walk_deg_per_sqrt_s * np.sqrt(dt), 3))
+            seg["R_w_n"] = seg["R_w_n"] @ Rotation.from_rotvec(turn).as_matrix()
+        last_p = truth.p[i]
         weak = any(a <= t < b for a, b in opt.weak)
         noise = opt.noise_m * (3.0 if weak else 1.0)
-        p_w = w0 + scale * (R_w_n @ (p_cam + drift - origin + rng.normal(0, noise, 3)))
+        scale, R_w_n = seg["scale"], seg["R_w_n"]
         rot_noise = Rotation.from_rotvec(np.radians(rng.normal(0, opt.rot_noise_deg, 3)))
         T = np.eye(4)
         T[:3, :3] = rot_noise.as_matrix() @ R_w_n @ truth.R[i] @ R_b_c
-        T[:3, 3] = p_w
+        T[:3, 3] = seg["p_w"] + scale * (R_w_n @ rng.normal(0, noise, 3))
         cov = np.diag([(scale * opt.cov_std_m * (3.0 if weak else 1.0)) ** 2] * 3
                       + [np.radians(opt.rot_noise_deg) ** 2] * 3)
         result = FrameResult(t, T, "insufficient" if weak else "good", cov, new_segment=new)

@@ -35,6 +35,7 @@ class FusionConfig:
     vo_position_std_m: float = 0.02
     vo_rotation_std_deg: float = 0.5
     vo_drift_m_per_sqrt_m: float = 0.01  # VO position random walk per sqrt(metre travelled)
+    reanchor_distance_m: float = 5.0  # fuse the map relative to a pose at most this far back
     inflate_insufficient: float = 4.0  # variance factor
     inflate_bad: float = 25.0
     # autopilot attitude (ATTITUDE): roll/pitch and compass heading noise
@@ -76,7 +77,8 @@ class FusionConfig:
         """InputError naming the first setting that makes no sense (in config file `path`)."""
         positive = ("scale_std_max", "heading_std_max_deg", "progress_interval_s",
                     "scale_prior_std", "initial_scale", "vo_position_std_m",
-                    "vo_rotation_std_deg", "attitude_std_deg", "heading_std_deg",
+                    "vo_rotation_std_deg", "reanchor_distance_m", "attitude_std_deg",
+                    "heading_std_deg",
                     "attitude_timeout_s", "accel_noise", "accel_bias_std", "imu_timeout_s",
                     "motion_accel_std", "range_std_m", "baro_std_m", "gate_chi2_1dof",
                     "gate_chi2_3dof", "history_s", "clock_offset_window_s",

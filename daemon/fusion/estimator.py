@@ -30,7 +30,7 @@ from daemon.fusion.clock import ClockMap
 from daemon.fusion.config import FusionConfig
 from daemon.fusion.output import build_estimate, inflation
 from daemon.fusion.sensors import IMU_PRIORITY, Attitude, Baro, Imu, Range, parse
-from daemon.fusion.state import LOG_SCALE, NavFilter
+from daemon.fusion.state import ANCHOR, LOG_SCALE, POS, NavFilter
 from daemon.fusion.timeline import Event, Timeline
 from daemon.mounting import body_from_camera
 
@@ -228,11 +228,18 @@ class FusionEstimator:
         R_n_b = f.R_nom @ frame.R_w_b
         if att is not None:
             m.update_alignment(f, att.R_n_b, frame.R_w_b, self._alignment_noise(f, frame))
-        m.update_vo(f, frame.p_w, frame.pos_cov, R_n_b, factor)
-        if f.rejections["vo"] >= self.cfg.reset_after_rejections and att is not None:
+        if m.update_vo(f, frame.p_w, frame.pos_cov, R_n_b, factor):
+            if np.linalg.norm(f.x[POS] - f.x[ANCHOR]) > self.cfg.reanchor_distance_m:
+                f.reanchor(frame.p_w, R_n_b, self._vo_noise_n(f, frame))
+        elif f.rejections["vo"] >= self.cfg.reset_after_rejections and att is not None:
             f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, f.x[LOG_SCALE])
             f.rejections["vo"] = 0
             f.realigns += 1
+
+    def _vo_noise_n(self, f: NavFilter, frame: FrameInput) -> np.ndarray:
+        """The tracker's position noise in metres and N."""
+        cov = f.scale**2 * (f.R_nom @ frame.pos_cov @ f.R_nom.T)
+        return cov + np.eye(3) * self.cfg.vo_position_std_m**2
 
     def _alignment_noise(self, f: NavFilter, frame: FrameInput) -> np.ndarray:
         """Covariance of the autopilot-vs-tracker rotation: attitude and compass noise plus the

@@ -120,11 +120,8 @@ class NavFilter:
     def start_segment(self, p_w: np.ndarray, R_w_b: np.ndarray, R_n_b: np.ndarray,
                       log_scale: float) -> None:
         """A new map: clone the camera position as the anchor, fresh scale and alignment."""
+        self.reanchor(p_w, R_n_b, np.zeros((3, 3)))
         x, P = self.ekf.x, self.ekf.P
-        x[ANCHOR] = x[POS] + R_n_b @ self.lever
-        P[ANCHOR, :] = P[POS, :]
-        P[:, ANCHOR] = P[:, POS]
-        P[ANCHOR, ANCHOR] = P[POS, POS]
         x[LOG_SCALE] = log_scale
         x[THETA] = 0.0
         for index, std in ((LOG_SCALE, self.cfg.scale_prior_std),
@@ -137,6 +134,15 @@ class NavFilter:
             else:
                 P[index, index] = std**2
         self.R_nom = R_n_b @ R_w_b.T
+
+    def reanchor(self, p_w: np.ndarray, R_n_b: np.ndarray, cov_n: np.ndarray) -> None:
+        """Make the current camera position (tracker position p_w, its noise cov_n in metres
+        and N) the anchor: from here on only the map's drift since now matters."""
+        x, P = self.ekf.x, self.ekf.P
+        x[ANCHOR] = x[POS] + R_n_b @ self.lever
+        P[ANCHOR, :] = P[POS, :]
+        P[:, ANCHOR] = P[:, POS]
+        P[ANCHOR, ANCHOR] = P[POS, POS] + cov_n
         self.p_w0 = np.asarray(p_w, float).copy()
 
     def reference(self, which: str, value: float, std: float) -> None:
