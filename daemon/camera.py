@@ -8,6 +8,7 @@ frame replace an untaken one; as-fast-as-possible playback waits for the tracker
 from __future__ import annotations
 
 import logging
+import re
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -22,6 +23,7 @@ from daemon.frames import Frame, LatestSlot
 
 log = logging.getLogger("sdvl.camera")
 DEVICE_STAMP_MAX_AGE_S = 0.5  # trust a driver's buffer stamp only if it is this recent
+HAS_GSTREAMER = re.search(r"GStreamer:\s*YES", cv2.getBuildInformation()) is not None
 
 
 class FrameSource(Protocol):
@@ -86,6 +88,9 @@ class OpenCVSource:
         if self.spec.isdigit():
             cap = cv2.VideoCapture(int(self.spec), cv2.CAP_V4L2)
         elif "!" in self.spec:
+            if not HAS_GSTREAMER:
+                raise OSError("this OpenCV has no GStreamer (pip wheels do not): install the "
+                              "system's python3-opencv or use a V4L2 device")
             cap = cv2.VideoCapture(self.spec, cv2.CAP_GSTREAMER)
         else:
             if not self.is_file and not Path(self.spec).exists():

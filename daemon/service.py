@@ -89,7 +89,7 @@ class Service:
         self._last_sent_t: float | None = None
         self._last_frame_time = time.monotonic()
         self._reset_counter = 0
-        self._stop: asyncio.Event | None = None
+        self._stop = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
         self.capture: CaptureThread | None = None
         self.tracking: TrackingThread | None = None
@@ -99,7 +99,6 @@ class Service:
     async def run(self) -> int:
         """Serve until stopped; 0 on a clean stop, 2 on bad input found late, 1 on a crash."""
         self._loop = asyncio.get_running_loop()
-        self._stop = asyncio.Event()
         sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
         self.link.start()
         slot = LatestSlot()
@@ -128,9 +127,8 @@ class Service:
         return 1 if error is not None else 0
 
     def stop(self) -> None:
-        """Ask the service to stop (safe from the loop's thread, e.g. a signal handler)."""
-        if self._stop is not None:
-            self._stop.set()
+        """Ask the service to stop (from the loop's thread, e.g. a signal handler)."""
+        self._stop.set()
 
     async def _shutdown(self, tasks: list[asyncio.Task]) -> None:
         self.notifier.notify("STOPPING=1")

@@ -160,3 +160,12 @@ def test_dataset_folder_and_other_sources_from_config(data_dir):
     assert isinstance(open_source(CameraConfig(source="testpattern")), TestPatternSource)
     device = open_source(CameraConfig(source="/dev/video0"))
     assert isinstance(device, OpenCVSource) and device.live and not device.finite
+
+
+def test_gstreamer_pipeline_without_gstreamer_says_so():
+    from daemon.camera import HAS_GSTREAMER
+
+    if HAS_GSTREAMER:
+        pytest.skip("this OpenCV has GStreamer")
+    with pytest.raises(OSError, match="no GStreamer"):
+        OpenCVSource("videotestsrc ! videoconvert ! appsink").open()
