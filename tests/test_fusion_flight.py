@@ -5,19 +5,19 @@ The numbers are printed (run with -s to see them)."""
 
 from __future__ import annotations
 
-import fusion_helpers as fh
+import json
+
 import numpy as np
 import pytest
 
 from daemon.config import MountingConfig
 from daemon.fusion import FusionConfig, FusionEstimator
+from sim import fusion_sim as fh
+from sim.cli import main
 
 TAKEOFF_START_S = 1.0
 TRACKER = fh.TrackerOptions(weak=((20.0, 24.0),), lost=((40.0, 40.5),))
-VARIANTS = {"rangefinder only": fh.SensorOptions(baro=False),
-            "baro only": fh.SensorOptions(rangefinder=False),
-            "IMU missing": fh.SensorOptions(imu=None),
-            "HIGHRES_IMU": fh.SensorOptions(imu="HIGHRES_IMU")}
+VARIANTS = ("rangefinder-only", "baro-only", "no-imu", "highres-imu")
 
 
 @pytest.fixture(scope="module")
@@ -85,11 +85,18 @@ def test_weak_tracking_inflates_covariance(survey) -> None:
     assert np.median([e.quality for e in weak]) < np.median([e.quality for e in good])
 
 
-@pytest.mark.parametrize("name", list(VARIANTS))
+@pytest.mark.parametrize("name", VARIANTS)
 def test_sensor_variants(truth: fh.Truth, name: str) -> None:
-    score, _estimator, out, _ = fly(truth, VARIANTS[name])
+    score, _estimator, out, _ = fly(truth, fh.SENSOR_VARIANTS[name])
     print(f"{name}: published {score.published}/{len(out)}")
     assert score.position_pct <= 3.0
     assert score.heading_rms_deg <= 2.0
     assert np.isfinite(score.velocity_rmse_m_s)
     assert score.first_published_s - TAKEOFF_START_S <= 5.0
+
+
+def test_fusion_sim_command_prints_the_scores(capsys) -> None:
+    assert main(["fusion-sim", "--legs", "1", "--reset-at", "-1", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["published"] > 0 and report["position_pct"] < 3.0
+    assert report["frame_ms_p95"] > 0 and report["reset_counter"] == 0

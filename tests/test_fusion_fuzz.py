@@ -5,7 +5,6 @@ from __future__ import annotations
 import copy
 import math
 
-import fusion_helpers as fh
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -13,6 +12,7 @@ from hypothesis import strategies as st
 
 from daemon.config import MountingConfig
 from daemon.fusion import FusionConfig, FusionEstimator
+from sim import fusion_sim as fh
 from vo.result import FrameResult
 
 FLIGHT = fh.simulate(truth=fh.survey_flight(climb_m=3.0, leg_m=6.0, legs=1), seed=7)

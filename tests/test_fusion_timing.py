@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import fusion_helpers as fh
 import numpy as np
 import pytest
 
 from daemon.config import MountingConfig
 from daemon.fusion import FusionConfig, FusionEstimator
+from sim import fusion_sim as fh
 from vo.result import FrameResult
 
 

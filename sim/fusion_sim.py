@@ -1,6 +1,7 @@
-"""A simulated flight for the fusion tests: ground truth, the autopilot's sensor messages and
-tracker results made from the truth (unknown scale, arbitrary world frame, noise, drift,
-quality drops, a new map segment).
+"""A simulated flight for the fusion filter (its tests and `sdvl fusion-sim`): ground truth,
+the autopilot's sensor messages as pymavlink messages with their arrival times, and tracker
+results made from the truth (unknown scale, arbitrary world frame, noise, drift in position,
+scale and rotation, quality drops, new map segments).
 
 The flight: take-off from the ground to 8 m, then a stop-and-go lawnmower survey, minimum-jerk
 between waypoints; attitude follows the acceleration like a multirotor's.
@@ -8,7 +9,8 @@ between waypoints; attitude follows the acceleration like a multirotor's.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import time
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
@@ -96,6 +98,14 @@ class SensorOptions:
     baro: bool = True
     baro_noise_m: float = 0.2
     latency: tuple = (0.005, 0.02)
+
+
+SENSOR_VARIANTS = {"full": SensorOptions(),
+                   "rangefinder-only": SensorOptions(baro=False),
+                   "baro-only": SensorOptions(rangefinder=False),
+                   "no-imu": SensorOptions(imu=None),
+                   "highres-imu": SensorOptions(imu="HIGHRES_IMU"),
+                   "imu-only": SensorOptions(rangefinder=False, baro=False)}
 
 
 @dataclass
@@ -233,8 +243,9 @@ def simulate(sensors: SensorOptions | None = None, tracker: TrackerOptions | Non
                   tracker_results(truth, tracker or TrackerOptions(), mounting, rng))
 
 
-def run(flight: Flight, estimator) -> list:
-    """Feed messages and frames in arrival order; (t_capture, estimate or None) per frame."""
+def run(flight: Flight, estimator, timings: list | None = None) -> list:
+    """Feed messages and frames in arrival order; (t_capture, estimate or None) per frame.
+    `timings` collects the wall time of each on_frame call, seconds."""
     out, k = [], 0
     msgs = flight.messages
     clock = {"now": 0.0}
@@ -245,7 +256,10 @@ def run(flight: Flight, estimator) -> list:
             estimator.on_autopilot_message(msgs[k][1])
             k += 1
         clock["now"] = ready
+        start = time.perf_counter()
         out.append((t_capture, estimator.on_frame(result, t_capture)))
+        if timings is not None:
+            timings.append(time.perf_counter() - start)
     return out
 
 
@@ -263,7 +277,13 @@ class Score:
 
     @property
     def position_pct(self) -> float:
+        """Position RMSE in percent of the distance flown while published."""
         return 100.0 * self.position_rmse_m / max(self.distance_m, 1e-9)
+
+    def to_dict(self) -> dict:
+        """Plain floats, for JSON."""
+        return {**{k: float(v) for k, v in asdict(self).items()},
+                "position_pct": self.position_pct}
 
 
 def score(flight: Flight, estimates: list, start_s: float) -> Score:
