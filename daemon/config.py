@@ -77,10 +77,11 @@ class OriginConfig:
 
 @dataclass(frozen=True)
 class ServiceConfig:
-    """Logging and the systemd status line."""
+    """Logging, the systemd status line, threads."""
 
     log_level: str = "info"
     status_interval_s: float = 5.0
+    mapping_thread: bool = True
 
 
 @dataclass(frozen=True)

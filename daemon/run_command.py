@@ -74,7 +74,8 @@ def tracker_factory(config: Config, camera: CameraModel) -> Callable[[Frame], ob
 
     def make(frame: Frame) -> object:
         height, width = frame.image.shape[:2]
-        return Tracker(fit_camera(camera, width, height), tracker_config, threaded=True)
+        return Tracker(fit_camera(camera, width, height), tracker_config,
+                       threaded=config.service.mapping_thread)
 
     return make
 

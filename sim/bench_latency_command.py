@@ -38,6 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--warmup", type=int, default=30,
                         help="first frames left out (compilation, map start; default 30)")
     parser.add_argument("--config", default=None, help="service config (tracker, mounting)")
+    parser.add_argument("--inline-mapping", action="store_true",
+                        help="map in the tracking thread instead of a mapping thread")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -51,6 +53,8 @@ class Recorder:
         now = time.monotonic()
         self.rows.append({"t_capture": tf.t_capture, "wait": tf.t_start - tf.t_capture,
                           "track": tf.track_s, "sent": sent,
+                          "estimate": tf.t_done - tf.t_start - tf.track_s,
+                          "handoff": now - tf.t_done,
                           "send": now - tf.t_capture if sent else None})
 
 
@@ -95,6 +99,8 @@ def report(recorder: Recorder, received: list, warmup: int, service: Service) ->
         "tracking_of_sent_ms": stats_ms([r["track"] for r in sent]),
         "capture_to_send_ms": stats_ms([r["send"] for r in sent]),
         "service_overhead_ms": stats_ms([r["send"] - r["wait"] - r["track"] for r in sent]),
+        "estimator_ms": stats_ms([r["estimate"] for r in sent]),
+        "handoff_and_send_ms": stats_ms([r["handoff"] for r in sent]),
         "capture_to_arrival_ms": stats_ms(arrivals),
     }
     if sent:
@@ -109,7 +115,8 @@ def print_report(r: dict) -> None:
           f"dropped by capture {r['dropped_by_capture']}")
     print(f"{'stage':28} {'median':>8} {'p95':>8} {'p99':>8}   ms")
     for key in ("wait_for_tracker_ms", "tracking_ms", "tracking_of_sent_ms",
-                "capture_to_send_ms", "service_overhead_ms", "capture_to_arrival_ms"):
+                "capture_to_send_ms", "service_overhead_ms", "estimator_ms",
+                "handoff_and_send_ms", "capture_to_arrival_ms"):
         s = r[key]
         if s["n"]:
             print(f"{key[:-3]:28} {s['median']:8.2f} {s['p95']:8.2f} {s['p99']:8.2f}")
@@ -137,6 +144,8 @@ def run(args: argparse.Namespace) -> int:
         url = conn.recv()
         config = replace(config, mavlink={"link": url, "output": "odometry"},
                          camera={"source": "testpattern", "calibration": ""})
+        if args.inline_mapping:
+            config = replace(config, service={"mapping_thread": False})
         make_tracker = tracker_factory(config, camera_model(config.camera, source))
         recorder = Recorder()
         service = Service(config, source, make_tracker, on_tracked=recorder)
