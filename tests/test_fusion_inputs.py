@@ -46,6 +46,14 @@ def test_pressure_altitude_standard_atmosphere() -> None:
     assert baro.altitude == pytest.approx(0.0)
 
 
+def test_px4_altitude_monotonic_is_a_baro_altitude() -> None:
+    msg = mavlink2.MAVLink_altitude_message(3_000_000, 512.5, 500.0, 1.0, 1.0, 0.0, 0.0)
+    t, [baro] = parse(msg)
+    assert t == 3.0 and baro.altitude == 512.5 and baro.source == "ALTITUDE"
+    msg.altitude_monotonic = math.nan
+    assert parse(msg)[1] == []
+
+
 def test_distance_sensor_downward_and_in_range_only() -> None:
     def msg(cm: int, orientation: int = DOWN):
         return mavlink2.MAVLink_distance_sensor_message(100, 20, 4000, cm, 0, 0, orientation, 0)

@@ -29,7 +29,7 @@ from daemon.fusion.attitude import AttitudeTrack
 from daemon.fusion.clock import ClockMap
 from daemon.fusion.config import FusionConfig
 from daemon.fusion.output import build_estimate, inflation
-from daemon.fusion.sensors import IMU_PRIORITY, Attitude, Baro, Imu, Range, parse
+from daemon.fusion.sensors import BARO_PRIORITY, IMU_PRIORITY, Attitude, Baro, Imu, Range, parse
 from daemon.fusion.state import ANCHOR, LOG_SCALE, POS, NavFilter
 from daemon.fusion.timeline import Event, Timeline
 from daemon.mounting import body_from_camera
@@ -85,7 +85,7 @@ class FusionEstimator:
         self.attitude = AttitudeTrack(cfg.attitude_timeout_s, cfg.history_s + 2.0)
         self.clock = ClockMap(cfg.clock_offset_window_s)
         self.timeline = Timeline(cfg.history_s)
-        self.imu_source: str | None = None
+        self.sources: dict[str, str] = {}  # "imu"/"baro" -> the message type fused
         self.dropped_stamps = 0
         self._inbox: deque[tuple[float, object]] = deque(maxlen=INBOX_LIMIT)
         self._lock = threading.Lock()
@@ -164,23 +164,21 @@ class FusionEstimator:
             if isinstance(sample, Attitude):
                 self.attitude.add(sample)
                 self.timeline.add(t, "attitude", None)  # late ones replay what used it
-            elif isinstance(sample, Imu):
-                self._add_imu(sample)
+            elif isinstance(sample, Imu) and self.cfg.use_imu:
+                self._add_stream("imu", sample, IMU_PRIORITY)
             elif isinstance(sample, Range) and self.cfg.use_rangefinder:
                 self.timeline.add(t, "range", sample)
             elif isinstance(sample, Baro) and self.cfg.use_baro:
-                self.timeline.add(t, "baro", sample)
+                self._add_stream("baro", sample, BARO_PRIORITY)
 
-    def _add_imu(self, sample: Imu) -> None:
-        """Keep one IMU stream: the best kind seen (HIGHRES over SCALED over RAW)."""
-        if not self.cfg.use_imu:
-            return
-        rank = IMU_PRIORITY[sample.source]
-        if self.imu_source is None or rank < IMU_PRIORITY[self.imu_source]:
-            self.imu_source = sample.source
-            log.info("fusion: IMU from %s", sample.source)
-        if sample.source == self.imu_source:
-            self.timeline.add(sample.t, "imu", sample)
+    def _add_stream(self, kind: str, sample: Imu | Baro, priority: dict[str, int]) -> None:
+        """Fuse one stream of a kind: the best source seen so far (see sensors.py)."""
+        current = self.sources.get(kind)
+        if current is None or priority[sample.source] < priority[current]:
+            self.sources[kind] = sample.source
+            log.info("fusion: %s from %s", kind, sample.source)
+        if sample.source == self.sources[kind]:
+            self.timeline.add(sample.t, kind, sample)
 
     # --- the filter ---------------------------------------------------------------------------
 

@@ -9,6 +9,7 @@ What ArduPilot and PX4 stream and in which units:
 - DISTANCE_SENSOR: time_boot_ms, current/min/max_distance cm, orientation
   (MAV_SENSOR_ROTATION_PITCH_270 = 25 points down).
 - SCALED_PRESSURE: time_boot_ms, press_abs hPa.
+- ALTITUDE (PX4): time_usec, altitude_monotonic m (barometric, never reset in flight).
 Accelerations are specific force in body FRD (about -9.81 m/s^2 on z at rest).
 Anything not finite or out of its sensor's range is dropped here, so the filter never sees it.
 """
@@ -28,7 +29,10 @@ MG = GRAVITY / 1000.0
 DOWNWARD = mavlink2.MAV_SENSOR_ROTATION_PITCH_270
 HIGHRES_ACCEL_BITS = 0b111
 HIGHRES_PRESSURE_BIT = 1 << 9
+# one stream of each kind is fused, the first of these that the autopilot sends
 IMU_PRIORITY = {"HIGHRES_IMU": 0, "SCALED_IMU": 1, "RAW_IMU": 2}
+BARO_PRIORITY = {"SCALED_PRESSURE": 0, "HIGHRES_IMU": 1, "ALTITUDE": 2}
+MAX_ALTITUDE_M = 12000.0
 MAX_SPECIFIC_FORCE = 16 * GRAVITY  # beyond any accelerometer's range: a corrupt sample
 MIN_PRESSURE_HPA, MAX_PRESSURE_HPA = 100.0, 1200.0
 
@@ -61,10 +65,11 @@ class Range:
 
 @dataclass(frozen=True)
 class Baro:
-    """Pressure altitude (up positive), metres, from the standard atmosphere."""
+    """Barometric altitude (up positive), metres."""
 
     t: float
     altitude: float
+    source: str
 
 
 Sample = Imu | Attitude | Range | Baro
@@ -100,7 +105,7 @@ def _highres(msg: object, t: float) -> list[Sample]:
         imu = _imu(t, np.array([msg.xacc, msg.yacc, msg.zacc], float), "HIGHRES_IMU")
         out += [imu] if imu else []
     if msg.fields_updated & HIGHRES_PRESSURE_BIT:
-        out += _baro(t, msg.abs_pressure)
+        out += _baro(t, msg.abs_pressure, "HIGHRES_IMU")
     return out
 
 
@@ -127,18 +132,26 @@ def _distance(msg: object, t: float) -> list[Sample]:
     return [Range(t, msg.current_distance / 100.0)]
 
 
-def _baro(t: float, hpa: float) -> list[Sample]:
+def _baro(t: float, hpa: float, source: str) -> list[Sample]:
     if not _finite(hpa) or not MIN_PRESSURE_HPA <= hpa <= MAX_PRESSURE_HPA:
         return []
-    return [Baro(t, pressure_altitude(hpa))]
+    return [Baro(t, pressure_altitude(hpa), source)]
 
 
 def _pressure(msg: object, t: float) -> list[Sample]:
-    return _baro(t, msg.press_abs)
+    return _baro(t, msg.press_abs, "SCALED_PRESSURE")
+
+
+def _altitude(msg: object, t: float) -> list[Sample]:
+    h = msg.altitude_monotonic
+    if not _finite(h) or abs(h) > MAX_ALTITUDE_M:
+        return []
+    return [Baro(t, float(h), "ALTITUDE")]
 
 
 PARSERS = {"HIGHRES_IMU": _highres, "SCALED_IMU": _scaled_imu, "RAW_IMU": _scaled_imu,
-           "ATTITUDE": _attitude, "DISTANCE_SENSOR": _distance, "SCALED_PRESSURE": _pressure}
+           "ATTITUDE": _attitude, "DISTANCE_SENSOR": _distance, "SCALED_PRESSURE": _pressure,
+           "ALTITUDE": _altitude}
 
 
 def parse(msg: object) -> tuple[float, list[Sample]] | None:
