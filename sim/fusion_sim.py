@@ -50,7 +50,8 @@ def _min_jerk(p0: np.ndarray, p1: np.ndarray, n: int) -> np.ndarray:
 
 
 def survey_flight(climb_m: float = 8.0, leg_m: float = 30.0, legs: int = 4,
-                  yaw_deg: float = 35.0) -> Truth:
+                  yaw_deg: float = 35.0, yaw_swing_deg: float = 11.5,
+                  yaw_period_s: float = 40.0) -> Truth:
     """Take-off (4 s climb after 1 s on the ground), lawnmower legs at 3 m/s, hover 1 s."""
     waypoints = [np.zeros(3), np.zeros(3), np.array([0.0, 0.0, -climb_m])]
     durations = [1.0, 4.0]
@@ -65,7 +66,7 @@ def survey_flight(climb_m: float = 8.0, leg_m: float = 30.0, legs: int = 4,
     t = np.arange(len(p)) * DT
     v = np.gradient(p, DT, axis=0)
     a = np.gradient(v, DT, axis=0)
-    yaw = np.radians(yaw_deg) + 0.2 * np.sin(2 * np.pi * t / 40.0)
+    yaw = np.radians(yaw_deg + yaw_swing_deg * np.sin(2 * np.pi * t / yaw_period_s))
     R = _attitudes(a, yaw)
     f = np.einsum("nji,nj->ni", R, a - GRAVITY)
     return Truth(t, p, v, R, f)
@@ -119,6 +120,7 @@ class TrackerOptions:
     drift_per_sqrt_m: float = 0.01
     scale_walk_per_sqrt_s: float = 0.002
     rot_walk_deg_per_sqrt_s: float = 0.05
+    lever: np.ndarray = field(default_factory=lambda: np.zeros(3))  # camera in body FRD, m
     cov_std_m: float = 0.02
     rot_noise_deg: float = 0.2
     weak: tuple = ()  # (t0, t1) windows of 'insufficient' tracking
@@ -211,13 +213,13 @@ def tracker_results(truth: Truth, opt: TrackerOptions, mounting: MountingConfig,
             seg = {"R_w_n": _random_rotation(rng), "p_w": rng.normal(0, 2.0, 3),
                    "scale": opt.scale * (1.0 if not out else rng.uniform(0.5, 2.0))}
         else:
-            step = truth.p[i] - last_p
+            step = truth.p[i] + truth.R[i] @ opt.lever - last_p
             walk = rng.normal(0, opt.drift_per_sqrt_m * np.sqrt(np.linalg.norm(step)), 3)
             seg["p_w"] = seg["p_w"] + seg["scale"] * (seg["R_w_n"] @ (step + walk))
             seg["scale"] *= np.exp(rng.normal(0, opt.scale_walk_per_sqrt_s * np.sqrt(dt)))
             turn = np.radians(rng.normal(0, opt.rot_walk_deg_per_sqrt_s * np.sqrt(dt), 3))
             seg["R_w_n"] = seg["R_w_n"] @ Rotation.from_rotvec(turn).as_matrix()
-        last_p = truth.p[i]
+        last_p = truth.p[i] + truth.R[i] @ opt.lever
         weak = any(a <= t < b for a, b in opt.weak)
         noise = opt.noise_m * (3.0 if weak else 1.0)
         scale, R_w_n = seg["scale"], seg["R_w_n"]

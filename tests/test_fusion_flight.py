@@ -26,10 +26,12 @@ def truth() -> fh.Truth:
 
 
 def fly(truth: fh.Truth, sensors: fh.SensorOptions, tracker: fh.TrackerOptions = TRACKER,
-        seed: int = 3) -> tuple[fh.Score, FusionEstimator, list, list]:
-    flight = fh.simulate(sensors, tracker, seed=seed, truth=truth)
+        seed: int = 3, mounting: MountingConfig | None = None,
+        config: FusionConfig | None = None) -> tuple[fh.Score, FusionEstimator, list, list]:
+    mounting = mounting or MountingConfig()
+    flight = fh.simulate(sensors, tracker, mounting, seed=seed, truth=truth)
     texts: list[str] = []
-    estimator = FusionEstimator(FusionConfig(), MountingConfig(), fh.link_config(),
+    estimator = FusionEstimator(config or FusionConfig(), mounting, fh.link_config(),
                                 report=texts.append)
     out = fh.run(flight, estimator)
     score = fh.score(flight, out, tracker.start_s)
@@ -93,6 +95,23 @@ def test_sensor_variants(truth: fh.Truth, name: str) -> None:
     assert score.heading_rms_deg <= 2.0
     assert np.isfinite(score.velocity_rmse_m_s)
     assert score.first_published_s - TAKEOFF_START_S <= 5.0
+
+
+def test_custom_camera_mounting() -> None:
+    mounting = MountingConfig(preset="custom", pitch_deg=-20.0, yaw_deg=5.0)
+    score, *_ = fly(fh.survey_flight(legs=2), fh.SensorOptions(), mounting=mounting)
+    assert score.position_pct <= 3.0 and score.heading_rms_deg <= 2.0
+
+
+def test_camera_lever_arm_from_config() -> None:
+    truth = fh.survey_flight(legs=1, yaw_swing_deg=60.0, yaw_period_s=6.0)
+    lever = np.array([0.4, 0.0, 0.1])
+    tracker = fh.TrackerOptions(lever=lever)
+    right = FusionConfig(camera_x_m=0.4, camera_z_m=0.1)
+    with_lever, *_ = fly(truth, fh.SensorOptions(), tracker, config=right)
+    without, *_ = fly(truth, fh.SensorOptions(), tracker)
+    assert with_lever.position_pct <= 3.0
+    assert with_lever.position_rmse_m < 0.7 * without.position_rmse_m
 
 
 def test_fusion_sim_command_prints_the_scores(capsys) -> None:
