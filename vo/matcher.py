@@ -141,14 +141,18 @@ def match_epipolar(params, ref_flat, ref_off, ref_w, ref_h, ref_u, ref_v, ref_le
     """Search a point with inverse depth rho +- 2 sigma along its epipolar segment in the
     current frame, among its FAST corners (cx, cy per level, normalised cxn, cyn) of levels
     0..max_level. Returns (u, v, level, ok) at level 0."""
+    if not (rho > 0.0 and sigma > 0.0 and np.isfinite(rho + sigma)):
+        return 0.0, 0.0, 0, False
     rho_far = max(rho - 2.0 * sigma, MIN_RHO)
     rho_near = rho + 2.0 * sigma
     # sample the segment to bound it in distorted pixels; endpoints in the normalised plane
     n_samples = 9
+    limit = 4.0 * (cur_w[0] + cur_h[0])
     umin, umax, vmin, vmax = 1e18, -1e18, 1e18, -1e18
     ax = ay = bx = by = 0.0
     for k in range(n_samples):
-        r = rho_near + (rho_far - rho_near) * k / (n_samples - 1)
+        a = k / (n_samples - 1)
+        r = rho_near * (1.0 - a) + rho_far * a
         X, Y, Z = transform(T_cur_ref, f_ref[0] / r, f_ref[1] / r, f_ref[2] / r)
         if 1e-6 * (abs(X) + abs(Y) + Z + 1e-30) >= Z or Z <= 0.0:
             return 0.0, 0.0, 0, False
@@ -156,7 +160,7 @@ def match_epipolar(params, ref_flat, ref_off, ref_w, ref_h, ref_u, ref_v, ref_le
             ax, ay = X / Z, Y / Z
         bx, by = X / Z, Y / Z
         u, v = project_point(params, X, Y, Z)
-        if np.isnan(u):
+        if not (abs(u) < limit and abs(v) < limit):  # NaN, or beyond the distortion model
             return 0.0, 0.0, 0, False
         umin, umax = min(umin, u), max(umax, u)
         vmin, vmax = min(vmin, v), max(vmax, v)
@@ -181,8 +185,8 @@ def match_epipolar(params, ref_flat, ref_off, ref_w, ref_h, ref_u, ref_v, ref_le
         tol = m / focal
         w = cur_w[level]
         h = cur_h[level]
-        r0 = max(0, int(to_level(vmin - m, level)))
-        r1 = min(h - 1, int(to_level(vmax + m, level)) + 1)
+        r0 = int(min(max(to_level(vmin - m, level), 0.0), h - 1.0))
+        r1 = int(min(max(to_level(vmax + m, level) + 1.0, 0.0), h - 1.0))
         lo_u = to_level(umin - m, level)
         hi_u = to_level(umax + m, level)
         for row in range(r0, r1 + 1):

@@ -12,15 +12,16 @@ from vo.se3 import inv_se3, transform
 
 
 @numba.njit(cache=True, nogil=True)
-def project_visible(params, T_c_w, pos_w, idx, width, height, margin):
-    """Level-0 pixels (N, 2) of points idx and a mask of those inside the image."""
+def project_visible(params, T_c_w, pos_w, idx, width, height, margin, max_r2):
+    """Level-0 pixels (N, 2) of points idx and a mask of those inside the image (and inside
+    the field of view, max_r2 on the normalised plane, where distortion models are valid)."""
     n = idx.shape[0]
     px = np.empty((n, 2))
     vis = np.zeros(n, dtype=np.bool_)
     for k in range(n):
         p = idx[k]
         X, Y, Z = transform(T_c_w, pos_w[p, 0], pos_w[p, 1], pos_w[p, 2])
-        if Z <= 1e-6:
+        if Z <= 1e-6 or (X * X + Y * Y) > max_r2 * Z * Z:
             continue
         u, v = project_point(params, X, Y, Z)
         if np.isnan(u):
@@ -47,7 +48,7 @@ def closest_views(params, idx, pos_w, host, hu, hv, hlevel, host_only, start, or
         p = idx[k]
         P = pos_w[p]
         rc = P - cur_centre
-        rc /= np.sqrt(rc @ rc)
+        rc /= max(np.sqrt(rc @ rc), 1e-12)
         best = -2.0
         n_obs = 0 if host_only[k] else start[p + 1] - start[p]
         for j in range(-1, n_obs):
@@ -59,7 +60,7 @@ def closest_views(params, idx, pos_w, host, hu, hv, hlevel, host_only, start, or
             T = kf_T_c_w[s]
             X = T[:3, :3] @ P + T[:3, 3]
             r = X @ T[:3, :3]  # ray from the keyframe centre to P, in the world
-            c = (r @ rc) / np.sqrt(r @ r)
+            c = (r @ rc) / max(np.sqrt(r @ r), 1e-12)
             if c > best:
                 best = c
                 slot[k], uv[k, 0], uv[k, 1], level[k] = s, u, v, lv
@@ -119,8 +120,13 @@ def match_in_cells(params, order, px, cell, T_c_w, host, huv, hlevel, f, depth, 
 class Reprojector:
     """Per-frame projection and grid-limited matching of map points."""
 
-    def __init__(self, width: int, height: int, cell: int, seed: int):
+    def __init__(self, camera, cell: int, seed: int):
+        width, height = camera.width, camera.height
         self.width, self.height, self.cell = width, height, cell
+        corners = np.array([[0, 0], [width - 1, 0], [0, height - 1], [width - 1, height - 1]],
+                           dtype=np.float64)
+        f = camera.unproject(corners)
+        self.max_r2 = 1.2 * float(np.max((f[:, 0] ** 2 + f[:, 1] ** 2) / f[:, 2] ** 2))
         self.cols = (width + cell - 1) // cell
         n_cells = self.cols * ((height + cell - 1) // cell)
         # a fixed random cell order, so the match cap does not favour the image top
@@ -138,7 +144,7 @@ class Reprojector:
         Returns (point ids, uv (M, 2), levels, n_visible, n_attempts, attempted point ids).
         """
         px, vis = project_visible(params, frame.T_c_w, pts.pos_w, idx, self.width, self.height,
-                                  8.0)
+                                  8.0, self.max_r2)
         idx, px, search = idx[vis], px[vis], search[vis]
         if len(idx) == 0:
             empty = np.zeros(0, dtype=np.int64)

@@ -44,8 +44,7 @@ class Tracker:
         self._frame_id = 0
         self._queue: queue.Queue | None = None
         self._thread: threading.Thread | None = None
-        self.reprojector = Reprojector(camera.width, camera.height, self.config.grid_cell,
-                                       self.config.seed)
+        self.reprojector = Reprojector(camera, self.config.grid_cell, self.config.seed)
         self._reset()
 
     # ------------------------------------------------------------------ lifecycle
@@ -155,6 +154,8 @@ class Tracker:
             px_angle = self.mapper.px_angle
             sigma = np.array([inverse_depth_sigma(init.T_cur_ref, init.f_ref[i], init.depth[i],
                                                   px_angle) for i in range(n)])
+            # no more uncertain than a new candidate's prior (points with little parallax)
+            sigma = np.minimum(sigma, self.config.seed_sigma_ratio * np.median(rho))
             ids = pts.add(slot, init.px_ref[:, 0], init.px_ref[:, 1], level, init.f_ref, rho,
                           sigma, np.full(n, 2.0 * rho.max()), self.config.seed_a,
                           self.config.seed_b, np.eye(4))
