@@ -21,7 +21,7 @@ def project_visible(params, T_c_w, pos_w, idx, width, height, margin, max_r2):
     for k in range(n):
         p = idx[k]
         X, Y, Z = transform(T_c_w, pos_w[p, 0], pos_w[p, 1], pos_w[p, 2])
-        if Z <= 1e-6 or (X * X + Y * Y) > max_r2 * Z * Z:
+        if Z <= 1e-6 or X * X + Y * Y > max_r2 * Z * Z:
             continue
         u, v = project_point(params, X, Y, Z)
         if np.isnan(u):
