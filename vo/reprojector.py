@@ -21,7 +21,8 @@ def project_visible(params, T_c_w, pos_w, idx, width, height, margin, max_r2):
     for k in range(n):
         p = idx[k]
         X, Y, Z = transform(T_c_w, pos_w[p, 0], pos_w[p, 1], pos_w[p, 2])
-        if Z <= 1e-6 or X * X + Y * Y > max_r2 * Z * Z:
+        r2 = (X * X + Y * Y) / (Z * Z) if Z > 1e-6 else np.inf
+        if r2 > max_r2:
             continue
         u, v = project_point(params, X, Y, Z)
         if np.isnan(u):
