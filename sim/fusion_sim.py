@@ -276,6 +276,7 @@ class Score:
     heading_rms_deg: float
     velocity_rmse_m_s: float
     nees_position: float  # mean NEES per degree of freedom
+    nees_velocity: float
 
     @property
     def position_pct(self) -> float:
@@ -293,7 +294,7 @@ def score(flight: Flight, estimates: list, start_s: float) -> Score:
     at `start_s` (the first tracked frame): no other alignment."""
     truth = flight.truth
     origin = truth.p[truth.at(start_s)]
-    pos_err, head_err, vel_err, nees, times = [], [], [], [], []
+    pos_err, head_err, vel_err, nees, nees_v, times = [], [], [], [], [], []
     for t_capture, e in estimates:
         if e is None:
             continue
@@ -302,15 +303,18 @@ def score(flight: Flight, estimates: list, start_s: float) -> Score:
         err = e.position - (truth.p[i] - origin)
         pos_err.append(err)
         vel_err.append(e.velocity_local - truth.v[i])
+        err_b = e.R_local_body.T @ vel_err[-1]
+        nees_v.append(err_b @ np.linalg.solve(e.velocity_covariance[:3, :3], err_b) / 3.0)
         nees.append(err @ np.linalg.solve(e.pose_covariance[:3, :3], err) / 3.0)
         R = e.R_local_body @ truth.R[i].T
         head_err.append(np.degrees(np.arctan2(R[1, 0], R[0, 0])))
         times.append(t)
     if not times:
-        return Score(0, np.inf, np.inf, 0.0, np.inf, np.inf, np.inf)
+        return Score(0, np.inf, np.inf, 0.0, np.inf, np.inf, np.inf, np.inf)
     rms = lambda a: float(np.sqrt(np.mean(np.sum(np.square(a), axis=-1))))  # noqa: E731
     return Score(len(times), times[0], rms(np.array(pos_err)), truth.distance(times[0], times[-1]),
-                 rms(np.array(head_err)[:, None]), rms(np.array(vel_err)), float(np.mean(nees)))
+                 rms(np.array(head_err)[:, None]), rms(np.array(vel_err)), float(np.mean(nees)),
+                 float(np.mean(nees_v)))
 
 
 def link_config() -> MavlinkConfig:

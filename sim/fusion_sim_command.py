@@ -47,8 +47,9 @@ def run(args: argparse.Namespace) -> int:
           f"{len(estimates)} frames, first at {score.first_published_s:.2f} s")
     print(f"  position RMSE {score.position_rmse_m:.3f} m = {score.position_pct:.2f}% of "
           f"{score.distance_m:.0f} m flown; heading RMS {score.heading_rms_deg:.2f} deg")
-    print(f"  velocity RMSE {score.velocity_rmse_m_s:.3f} m/s; position NEES per dof "
-          f"{score.nees_position:.2f}; reset_counter {estimator.reset_counter}")
+    print(f"  velocity RMSE {score.velocity_rmse_m_s:.3f} m/s; NEES per dof: position "
+          f"{score.nees_position:.2f}, velocity {score.nees_velocity:.2f}; reset_counter "
+          f"{estimator.reset_counter}")
     print(f"  filter time per frame: median {report['frame_ms_median']:.2f} ms, "
           f"p95 {report['frame_ms_p95']:.2f} ms")
     for text in texts:

@@ -62,7 +62,7 @@ def _frame_input(result: object, R_c_b: np.ndarray, segment: int) -> FrameInput 
     cov = np.zeros((6, 6))
     if result.covariance is not None:
         given = np.asarray(result.covariance, dtype=np.float64)
-        if given.shape == (6, 6) and np.all(np.isfinite(given)):
+        if given.shape == (6, 6) and np.all(np.isfinite(given)) and np.all(np.diag(given) >= 0):
             cov = 0.5 * (given + given.T)
     return FrameInput(T[:3, 3].copy(), T[:3, :3] @ R_c_b, cov[:3, :3], cov[3:, 3:],
                       result.quality, segment)
