@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     config = TrackerConfig.from_toml(args.config) if args.config else TrackerConfig()
     sequence = resolve_sequence(args.sequence)
     tracker = Tracker(sequence.camera, config, threaded=args.threaded)
-    times, poses, timings, qualities = [], [], [], []
+    times, poses, timings, qualities, segment = [], [], [], [], []
     n_frames = 0
     started = time.perf_counter()
     first_pose_s = None
@@ -81,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
             if result.has_pose:
                 times.append(t)
                 poses.append(result.T_w_c)
+                segment.append(len(segment) and segment[-1] + int(result.new_segment))
                 if first_pose_s is None:
                     first_pose_s = time.perf_counter() - started
             now = time.perf_counter()
@@ -95,16 +96,18 @@ def run(args: argparse.Namespace) -> int:
     estimate = Trajectory.from_matrices(np.array(times), np.array(poses)) if poses else None
     if args.out is not None and estimate is not None:
         write_tum(estimate, args.out)
-    report = build_report(sequence, n_frames, estimate, timings, qualities, first_pose_s,
-                          tracker.dropped_mapping_frames)
+    report = build_report(sequence, n_frames, estimate, np.array(segment), timings, qualities,
+                          first_pose_s, tracker.dropped_mapping_frames)
     print(json.dumps(report) if args.json else format_report(report))
     return 0
 
 
-def build_report(sequence, n_frames: int, estimate: Trajectory | None,
+def build_report(sequence, n_frames: int, estimate: Trajectory | None, segment: np.ndarray,
                  timings: list[dict[str, float]], qualities: list[str],
                  first_pose_s: float | None, dropped: int) -> dict:
-    """The numbers `sdvl track` prints."""
+    """The numbers `sdvl track` prints. Each map segment (a re-initialisation starts a new
+    one) has its own scale and frame, so the ATE over several segments is only indicative;
+    the longest segment's ATE is given too."""
     from sim.metrics import evaluate
 
     stats = stage_stats(timings)
@@ -123,11 +126,21 @@ def build_report(sequence, n_frames: int, estimate: Trajectory | None,
         "qualities": {q: qualities.count(q) for q in sorted(set(qualities))},
         "first_pose_s": first_pose_s,
         "dropped_mapping_frames": dropped,
+        "segments": int(segment.max()) + 1 if len(segment) else 0,
+        "longest_segment_poses": 0,
+        "longest_segment_ate_rmse_m": None,
     }
     if sequence.groundtruth is not None and estimate is not None and len(estimate) >= 3:
         ev = evaluate(sequence.groundtruth, estimate, "sim3")
         report.update(ate_rmse_m=ev.ate_rmse_m, rot_rmse_deg=ev.rot_rmse_deg, scale=ev.scale,
                       path_length_m=ev.path_length_m)
+    if estimate is not None and len(segment):
+        longest = np.bincount(segment).argmax()
+        part = estimate.subset(segment == longest)
+        report["longest_segment_poses"] = len(part)
+        if sequence.groundtruth is not None and len(part) >= 3:
+            report["longest_segment_ate_rmse_m"] = evaluate(sequence.groundtruth, part,
+                                                            "sim3").ate_rmse_m
     return report
 
 
@@ -141,6 +154,11 @@ def format_report(r: dict) -> str:
                      f"{r['rot_rmse_deg']:.2f} deg")
     else:
         lines.append("ATE RMSE   n/a (no ground truth)")
+    if r["segments"] > 1:
+        seg_ate = r["longest_segment_ate_rmse_m"]
+        lines.append(f"segments   {r['segments']} (map re-initialised); longest "
+                     f"{r['longest_segment_poses']} poses"
+                     + ("" if seg_ate is None else f", ATE RMSE {seg_ate:.4f} m"))
     lines.append("qualities  " + ", ".join(f"{k} {v}" for k, v in r["qualities"].items()))
     lines.append("stage          median ms    p95 ms")
     for name, med in r["stages"].items():

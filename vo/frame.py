@@ -52,8 +52,8 @@ class Corners:
         for level, img in enumerate(pyramid.images):
             kps = detector.detect(img)
             if kps:
-                pts = np.array([k.pt for k in kps], dtype=np.float64)
-                resp = np.array([k.response for k in kps], dtype=np.float64)
+                pts = cv2.KeyPoint_convert(kps).astype(np.float64)
+                resp = np.fromiter((k.response for k in kps), np.float64, len(kps))
             else:
                 pts, resp = np.zeros((0, 2)), np.zeros(0)
             order = np.lexsort((pts[:, 0], pts[:, 1]))

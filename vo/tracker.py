@@ -181,6 +181,10 @@ class Tracker:
         t0 = time.perf_counter()
         self._align(frame, last)
         timings["align"] = _ms(t0)
+        if cfg.track_candidates:
+            t0 = time.perf_counter()
+            frame.corners(cfg.fast_threshold)  # the epipolar search of candidates needs them
+            timings["corners"] = _ms(t0)
         t0 = time.perf_counter()
         ids, uv, levels, n_visible, n_attempts, attempted = self._reproject(frame)
         timings["reproject"] = _ms(t0)
