@@ -128,7 +128,10 @@ def _build_section(name: str, cls: type, table: object, path: Path | None) -> ob
         if key not in hints:
             raise InputError(f"unknown key '{name}.{key}': {_suggest(key, hints)}", path)
         values[key] = _check_value(f"{name}.{key}", value, hints[key], path)
-    return cls(**values)
+    section = cls(**values)
+    if hasattr(section, "check"):  # a section with its own range checks (e.g. fusion)
+        section.check(path)
+    return section
 
 
 def _check_ranges(cfg: Config, path: Path | None) -> None:

@@ -6,7 +6,7 @@ import socket
 
 import pytest
 
-from daemon.autopilot_params import check_parameters, from_wire, wire_value
+from daemon.autopilot_params import check_parameters, from_wire, parameter_names, wire_value
 from sim.autopilot import SimAutopilot, SimOptions
 from sim.autopilot.params import INT32, PX4_PARAMS
 from sim.cli import main
@@ -23,6 +23,10 @@ def test_vision_ready_ardupilot_passes(capsys):
     assert code == 0, out
     assert "autopilot: ardupilot (system 1)" in out
     assert "VISO_TYPE          3" in out and "OK: the autopilot is set up for vision" in out
+    reads = [r.msg for r in sim.messages("PARAM_REQUEST_READ")]
+    assert {m.param_id for m in reads} == set(parameter_names("ardupilot"))
+    assert all((m.target_system, m.target_component, m.param_index) == (1, 1, -1) for m in reads)
+    assert all(r.msg.get_srcComponent() == 197 for r in sim.received)
 
 
 def test_misconfigured_ardupilot_says_what_to_set(capsys):

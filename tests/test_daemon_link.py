@@ -150,9 +150,17 @@ def test_origin_resent_until_confirmed(udp_run):
     commands = sim.messages("COMMAND_INT")
     assert commands and all(c.msg.command == MAV_CMD_DO_SET_GLOBAL_ORIGIN for c in commands)
     c = commands[0].msg
-    assert (c.target_system, c.frame, c.x, c.y) == (1, mavlink2.MAV_FRAME_GLOBAL,
-                                                    round(LAT * 1e7), round(LON * 1e7))
+    assert (c.target_system, c.target_component, c.frame, c.x, c.y) == (
+        1, 1, mavlink2.MAV_FRAME_GLOBAL, round(LAT * 1e7), round(LON * 1e7))
     assert c.z == pytest.approx(ALT)
+    assert (c.current, c.autocontinue, c.param1, c.param2, c.param3, c.param4) == (0,) * 6
+    requests = sim.messages("COMMAND_LONG")
+    assert len(requests) == len(commands)  # each attempt asks for GPS_GLOBAL_ORIGIN too
+    r = requests[0].msg
+    assert (r.target_system, r.target_component, r.command, r.confirmation) == (
+        1, 1, mavlink2.MAV_CMD_REQUEST_MESSAGE, 0)
+    assert (r.param1, r.param2, r.param3, r.param4, r.param5, r.param6, r.param7) == (
+        mavlink2.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN, 0, 0, 0, 0, 0, 0)
     assert run.service.origin.confirmed
     texts = [r.msg.text for r in sim.messages("STATUSTEXT")]
     assert "VIO: EKF origin set" in texts
@@ -164,7 +172,9 @@ def test_statustext_on_state_changes_only(udp_run):
     assert texts[0].msg.text == "VIO: tracking good"
     assert len(texts) <= 3  # good, origin set: no repeats while nothing changes
     for rec in texts:
-        assert rec.msg.text.startswith("VIO: ")
+        assert rec.msg.text.startswith("VIO: ") and len(rec.msg.text) <= 50
+        assert rec.msg.severity == mavlink2.MAV_SEVERITY_INFO
+        assert (rec.msg.id, rec.msg.chunk_seq) == (0, 0)  # one chunk: nothing to join
         assert (rec.msg.get_srcSystem(), rec.msg.get_srcComponent()) == (1, 197)
 
 
