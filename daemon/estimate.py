@@ -22,6 +22,7 @@ from daemon.config import MavlinkConfig, MountingConfig
 from daemon.mounting import body_from_camera, rotation_vector, rotation_zyx
 
 QUALITY_PERCENT = {"good": 100, "insufficient": 50, "bad": 10}
+INFLATION = {"good": 1.0, "insufficient": 4.0, "bad": 25.0}  # covariance factor per quality
 
 
 @dataclass(frozen=True)
@@ -122,10 +123,10 @@ class PassThroughEstimator:
         velocity = (position - prev_position) / dt
         rates = rotation_vector(prev_R.T @ R_L_b) / dt
         tracker_cov = self._tracker_covariance(result.covariance, R_L_w)
-        pose_cov = tracker_cov + np.diag(self.floor)
+        pose_cov = (tracker_cov + np.diag(self.floor)) * INFLATION[result.quality]
         # frame-to-frame differences: two independent pose errors over dt, floored at the
         # configured standard deviations per second
-        vel_cov = 2.0 * tracker_cov / dt**2 + np.diag(self.floor)
+        vel_cov = (2.0 * tracker_cov / dt**2 + np.diag(self.floor)) * INFLATION[result.quality]
         for block in (slice(0, 3), slice(3, 6)):  # both into body FRD
             vel_cov[block, block] = R_L_b.T @ vel_cov[block, block] @ R_L_b
         estimate = VisionEstimate(

@@ -24,7 +24,7 @@ import serial
 from calib.errors import InputError
 
 log = logging.getLogger("sdvl.link")
-MAX_SERIAL_BACKLOG = 64 * 1024
+MAX_BACKLOG = 64 * 1024  # bytes queued for a slow serial port or TCP peer
 
 
 @dataclass(frozen=True)
@@ -198,6 +198,8 @@ class TcpLink(Link):
     def write(self, data: bytes) -> bool:
         if self._transport is None or self._transport.is_closing():
             return False
+        if self._transport.get_write_buffer_size() > MAX_BACKLOG:
+            return False  # the peer stopped reading: drop rather than grow without bound
         self._transport.write(data)
         self.bytes_out += len(data)
         return True
@@ -244,7 +246,7 @@ class SerialLink(Link):
     def write(self, data: bytes) -> bool:
         if self._port is None or not self.connected:
             return False
-        if len(self._backlog) + len(data) > MAX_SERIAL_BACKLOG:
+        if len(self._backlog) + len(data) > MAX_BACKLOG:
             log.warning("link %s: output backlog full, dropping %d bytes", self.spec, len(data))
             return False
         had_backlog = bool(self._backlog)

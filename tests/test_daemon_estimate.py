@@ -133,3 +133,12 @@ def test_reset_counter_wraps():
     run(est, [pose(), pose(p=(0, 0, 0.1))])
     run(est, [pose(), pose(p=(0, 0, 0.1))])  # new_segment on its first frame
     assert est.reset_counter == 0
+
+
+def test_degraded_tracking_inflates_covariance_and_lowers_quality():
+    good = run(estimator(), [pose(), pose(p=(0, 0, 0.1))])[-1]
+    weak = run(estimator(), [pose(), pose(p=(0, 0, 0.1))], quality="insufficient")[-1]
+    bad = run(estimator(), [pose(), pose(p=(0, 0, 0.1))], quality="bad")[-1]
+    assert (good.quality, weak.quality, bad.quality) == (100, 50, 10)
+    assert np.allclose(weak.pose_covariance, 4 * good.pose_covariance)
+    assert np.allclose(bad.velocity_covariance, 25 * good.velocity_covariance)
