@@ -19,7 +19,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("daemon.run_command", "the companion service: camera -> tracker -> MAVLink"),
     "check-autopilot": ("daemon.check_autopilot_command", "check autopilot parameters for vision"),
     "mount-test": ("daemon.mount_test_command", "bench check of the camera mounting: move by hand"),
-    "fusion-sim": ("sim.fusion_sim_command", "the fusion EKF on a simulated flight: accuracy, NEES"),
+    "fusion-sim": ("sim.fusion_sim_command", "fusion EKF on a simulated flight: accuracy, NEES"),
     "bench-latency": ("sim.bench_latency_command", "capture-to-send latency vs tracking time"),
     "eval": ("sim.eval_command", "score an estimated trajectory against ground truth (ATE, RPE)"),
     "track": ("sim.track_command", "run the SDVL tracker over a sequence: accuracy and timing"),

@@ -9,7 +9,8 @@ import json
 import numpy as np
 
 from daemon.config import MountingConfig
-from daemon.fusion import FusionConfig, FusionEstimator
+from daemon.fusion.config import FusionConfig
+from daemon.fusion.estimator import FusionEstimator
 from sim import fusion_sim
 
 

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from daemon.config import MountingConfig
-from daemon.fusion import FusionConfig, FusionEstimator
+from daemon.fusion.config import FusionConfig
+from daemon.fusion.estimator import FusionEstimator
 from sim import fusion_sim as fh
 from sim.cli import main
 

@@ -11,7 +11,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from daemon.config import MountingConfig
-from daemon.fusion import FusionConfig, FusionEstimator
+from daemon.fusion.config import FusionConfig
+from daemon.fusion.estimator import FusionEstimator
 from sim import fusion_sim as fh
 from vo.result import FrameResult
 

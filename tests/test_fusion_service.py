@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from daemon_helpers import RunningService, service_config, wait_for
 
-from daemon.fusion import FusionConfig, FusionEstimator
+from daemon.fusion.config import FusionConfig
+from daemon.fusion.estimator import FusionEstimator
 from sim.autopilot import SimAutopilot, SimOptions
 
 EXPECTED = {"ardupilot": {"imu": "SCALED_IMU", "baro": "SCALED_PRESSURE"},

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from daemon.config import MountingConfig
-from daemon.fusion import FusionConfig, FusionEstimator
+from daemon.fusion.config import FusionConfig
+from daemon.fusion.estimator import FusionEstimator
 from sim import fusion_sim as fh
 from vo.result import FrameResult
 

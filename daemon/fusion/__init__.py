@@ -1,7 +1,4 @@
 """Fusion of the tracker's poses with the autopilot's sensors: metric scale, gravity, heading,
-velocity and an honest covariance (see estimator.py)."""
-
-from daemon.fusion.config import FusionConfig
-from daemon.fusion.estimator import FusionEstimator
-
-__all__ = ["FusionConfig", "FusionEstimator"]
+velocity and an honest covariance. `estimator.FusionEstimator` is the entry point, configured by
+`config.FusionConfig`; this package imports nothing itself so that daemon.config can use
+FusionConfig without an import cycle."""
