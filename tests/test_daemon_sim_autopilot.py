@@ -1,0 +1,134 @@
+"""The simulated autopilot itself, seen from a plain MAVLink client: streams and their values,
+origin handling, parameters, recording."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import common as mavlink2
+
+from daemon.messages import MAV_CMD_DO_SET_GLOBAL_ORIGIN
+from sim.autopilot import SimAutopilot, SimOptions
+from sim.autopilot.vehicle import GRAVITY
+
+
+class Client:
+    """A bare UDP MAVLink client (system 1, component 197) of the simulator."""
+
+    def __init__(self, sim: SimAutopilot):
+        port = int(sim.url.rsplit(":", 1)[1])
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.connect(("127.0.0.1", port))
+        self.sock.settimeout(0.05)
+        self.mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=197)
+        self.parser = mavlink2.MAVLink(None)
+        self.received: list[tuple[float, object]] = []
+
+    def send(self, msg) -> None:
+        self.sock.send(msg.pack(self.mav))
+        self.mav.seq = (self.mav.seq + 1) % 256
+
+    def listen(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            try:
+                data = self.sock.recv(65536)
+            except TimeoutError:
+                continue
+            for msg in self.parser.parse_buffer(data) or []:
+                self.received.append((time.monotonic(), msg))
+
+    def of(self, name: str) -> list:
+        return [m for _, m in self.received if m.get_type() == name]
+
+
+@pytest.mark.parametrize(("flavour", "streams"), [
+    ("ardupilot", {"ATTITUDE": 20, "SCALED_IMU": 50, "DISTANCE_SENSOR": 10,
+                   "SCALED_PRESSURE": 10}),
+    ("px4", {"ATTITUDE": 20, "HIGHRES_IMU": 50, "DISTANCE_SENSOR": 10, "ALTITUDE": 10}),
+])
+def test_streams_rates_and_values(flavour, streams):
+    with SimAutopilot(SimOptions(flavour=flavour)) as sim:
+        client = Client(sim)
+        client.send(client.mav.heartbeat_encode(18, 8, 0, 0, 4))
+        client.listen(2.2)
+    t0 = client.received[0][0]
+    window = [(t, m) for t, m in client.received if t - t0 > 0.1]
+    span = window[-1][0] - window[0][0]
+    for name, hz in {**streams, "TIMESYNC": 10}.items():
+        count = sum(1 for _, m in window if m.get_type() == name)
+        assert count / span == pytest.approx(hz, rel=0.10), name
+    beat = client.of("HEARTBEAT")[0]
+    assert beat.autopilot == {"ardupilot": 3, "px4": 12}[flavour] and beat.type == 2
+    for att in client.of("ATTITUDE"):
+        t = att.time_boot_ms / 1000
+        yaw = 2 * np.pi * t / 20.0 + np.pi / 2
+        assert np.angle(np.exp(1j * (att.yaw - yaw))) == pytest.approx(0, abs=1e-3)
+        assert abs(att.roll) <= 0.031 and abs(att.pitch) <= 0.031
+    for d in client.of("DISTANCE_SENSOR"):
+        assert 150 <= d.current_distance <= 152  # 1.5 m over the tilt
+        assert d.orientation == mavlink2.MAV_SENSOR_ROTATION_PITCH_270
+    if flavour == "ardupilot":
+        acc_z = [m.zacc / 1000 * GRAVITY for m in client.of("SCALED_IMU")]
+        pressure = [m.press_abs for m in client.of("SCALED_PRESSURE")]
+    else:
+        acc_z = [m.zacc for m in client.of("HIGHRES_IMU")]
+        pressure = [m.abs_pressure for m in client.of("HIGHRES_IMU")]
+        assert all(m.altitude_local == pytest.approx(1.5) for m in client.of("ALTITUDE"))
+    assert np.mean(acc_z) == pytest.approx(-GRAVITY, abs=0.2)
+    assert np.mean(pressure) == pytest.approx(1013.25 - 0.18, abs=0.02)  # 1.5 m up
+
+
+def test_origin_only_once_and_only_when_the_ekf_is_ready():
+    with SimAutopilot(SimOptions(ekf_ready_after_s=0.5, timesync_hz=0)) as sim:
+        client = Client(sim)
+        client.send(client.mav.set_gps_global_origin_encode(1, 1, 2, 3))
+        client.listen(0.1)
+        assert client.of("GPS_GLOBAL_ORIGIN") == [] and sim.origin is None
+        client.listen(0.5)
+        command = client.mav.command_int_encode(1, 1, 0, MAV_CMD_DO_SET_GLOBAL_ORIGIN, 0, 0,
+                                                0, 0, 0, 0, 470000000, 80000000, 500.0)
+        client.send(command)
+        client.listen(0.2)
+        client.send(client.mav.set_gps_global_origin_encode(1, 5, 6, 7))
+        client.send(client.mav.command_long_encode(1, 1, mavlink2.MAV_CMD_REQUEST_MESSAGE, 0,
+                                                   49, 0, 0, 0, 0, 0, 0))
+        client.listen(0.2)
+    origins = client.of("GPS_GLOBAL_ORIGIN")
+    assert [(o.latitude, o.longitude, o.altitude) for o in origins] == [(470000000, 80000000,
+                                                                         500000)] * 2
+    acks = [(a.command, a.result) for a in client.of("COMMAND_ACK")]
+    assert acks == [(MAV_CMD_DO_SET_GLOBAL_ORIGIN, mavlink2.MAV_RESULT_ACCEPTED),
+                    (mavlink2.MAV_CMD_REQUEST_MESSAGE, mavlink2.MAV_RESULT_ACCEPTED)]
+    assert [a[1:] for a in sim.origin_attempts] == [("message", False), ("command", True),
+                                                    ("message", False)]
+
+
+def test_parameters_read_and_listed():
+    with SimAutopilot(SimOptions(timesync_hz=0, param_overrides={"VISO_TYPE": 1})) as sim:
+        client = Client(sim)
+        client.send(client.mav.param_request_read_encode(1, 1, b"VISO_TYPE", -1))
+        client.send(client.mav.param_request_read_encode(1, 1, b"NO_SUCH", -1))
+        client.listen(0.2)
+        client.send(client.mav.param_request_list_encode(1, 1))
+        client.listen(0.3)
+    values = client.of("PARAM_VALUE")
+    assert (values[0].param_id, values[0].param_value) == ("VISO_TYPE", 1.0)
+    assert len(values) == 1 + values[0].param_count
+    assert {v.param_id for v in values[1:]} == set(sim.params)
+
+
+def test_records_vision_messages_with_arrival_time():
+    with SimAutopilot(SimOptions(timesync_hz=0)) as sim:
+        client = Client(sim)
+        before = time.monotonic()
+        client.send(client.mav.vision_position_estimate_encode(123, 1, 2, 3, 0, 0, 0))
+        client.send(client.mav.odometry_encode(456, 20, 12, 0, 0, 0, [1, 0, 0, 0], 0, 0, 0,
+                                               0, 0, 0, [0] * 21, [0] * 21))
+        client.listen(0.1)
+    vision = sim.vision
+    assert [r.msg.get_type() for r in vision] == ["VISION_POSITION_ESTIMATE", "ODOMETRY"]
+    assert all(before <= r.t <= time.monotonic() for r in vision)
