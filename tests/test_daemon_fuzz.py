@@ -7,6 +7,7 @@ import random
 import time
 
 import numpy as np
+import pytest
 from daemon_helpers import RunningService, service_config, wait_for
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -112,3 +113,27 @@ def test_vision_stream_continues_under_garbage():
     replies = [r for r in sim.messages("TIMESYNC", since=t0) if r.t <= t1]
     assert len(replies) >= 10  # of 25 requests, some were garbled on the way
     assert run.service.watch.alive
+
+
+@pytest.fixture(scope="module")
+def live_service():
+    sim = SimAutopilot(SimOptions(heartbeat_hz=5)).start()
+    run = RunningService(service_config(sim.url))
+    assert wait_for(lambda: len(sim.messages("ODOMETRY")) >= 5, 5.0)
+    yield sim, run
+    run.stop()
+    sim.stop()
+
+
+@settings(max_examples=25, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.too_slow])
+@given(garbage=hostile_bytes())
+def test_service_survives_hostile_bytes(live_service, garbage: bytes):
+    """Each hostile example goes to the running service; the next vision messages and TIMESYNC
+    answers still come."""
+    sim, run = live_service
+    t0 = time.monotonic()
+    sim.inject(garbage)
+    assert wait_for(lambda: len(sim.messages("ODOMETRY", since=t0)) >= 2, 2.0)
+    assert wait_for(lambda: len(sim.messages("TIMESYNC", since=t0)) >= 1, 2.0)
+    assert run.thread.is_alive() and run.service.watch.alive
