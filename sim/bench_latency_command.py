@@ -112,7 +112,7 @@ def report(recorder: Recorder, received: list, warmup: int, service: Service) ->
 
 def print_report(r: dict) -> None:
     print(f"frames measured {r['frames']}, vision messages sent {r['sent']}, "
-          f"dropped by capture {r['dropped_by_capture']}")
+          f"dropped by capture {r['dropped_by_capture']} (whole run, warm-up included)")
     print(f"{'stage':28} {'median':>8} {'p95':>8} {'p99':>8}   ms")
     for key in ("wait_for_tracker_ms", "tracking_ms", "tracking_of_sent_ms",
                 "capture_to_send_ms", "service_overhead_ms", "estimator_ms",
