@@ -60,6 +60,14 @@ def test_scale_converges_within_5_s_of_take_off(survey) -> None:
     assert texts[0].startswith("aligning") and any(t.startswith("aligned") for t in texts)
 
 
+@pytest.mark.parametrize("sensors", ["full", "rangefinder-only"])
+def test_scale_converges_within_5_s_of_a_1_m_take_off(sensors: str) -> None:
+    truth = fh.survey_flight(climb_m=1.0, leg_m=10.0, legs=1)
+    score, estimator, *_ = fly(truth, fh.SENSOR_VARIANTS[sensors], fh.TrackerOptions(), seed=1)
+    assert score.first_published_s - TAKEOFF_START_S <= 5.0
+    assert abs(estimator.filter.scale * fh.TrackerOptions().scale - 1.0) < 0.05
+
+
 def test_nothing_published_before_alignment(survey) -> None:
     _, _, out, _ = survey
     first = next(i for i, (_, e) in enumerate(out) if e is not None)

@@ -57,7 +57,7 @@ class FusionConfig:
     range_std_m: float = 0.05
     range_std_fraction: float = 0.01
     range_max_tilt_deg: float = 30.0
-    ground_walk_m_per_sqrt_s: float = 0.05  # terrain height under the vehicle
+    ground_walk_m_per_sqrt_m: float = 0.05  # terrain height change per sqrt(metre flown)
     # barometer (SCALED_PRESSURE / HIGHRES_IMU pressure)
     use_baro: bool = True
     baro_std_m: float = 0.3
@@ -88,7 +88,7 @@ class FusionConfig:
                 raise InputError(f"fusion.{key} must be > 0", path)
         non_negative = ("min_aligned_s", "vo_drift_m_per_sqrt_m", "alignment_walk_deg_per_sqrt_s",
                         "scale_walk_per_sqrt_s", "accel_bias_walk", "range_std_fraction",
-                        "ground_walk_m_per_sqrt_s", "baro_walk_m_per_sqrt_s")
+                        "ground_walk_m_per_sqrt_m", "baro_walk_m_per_sqrt_s")
         for key in non_negative:
             if not getattr(self, key) >= 0:
                 raise InputError(f"fusion.{key} must be >= 0", path)

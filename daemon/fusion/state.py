@@ -179,14 +179,16 @@ class NavFilter:
             acc = np.zeros(3)
             sigma = cfg.motion_accel_std
         speed = float(np.linalg.norm(x[VEL]))
+        horizontal_speed = float(np.linalg.norm(x[3:5]))
         x[POS] += x[VEL] * dt + 0.5 * acc * dt**2
         x[VEL] += acc * dt
         self.ekf.F = F
-        self.ekf.Q = self._process_noise(dt, sigma, speed, accel is not None)
+        self.ekf.Q = self._process_noise(dt, sigma, speed, horizontal_speed, accel is not None)
         self.ekf.P = F @ self.ekf.P @ F.T + self.ekf.Q
         self.t = t
 
-    def _process_noise(self, dt: float, sigma: float, speed: float, imu: bool) -> np.ndarray:
+    def _process_noise(self, dt: float, sigma: float, speed: float, horizontal_speed: float,
+                       imu: bool) -> np.ndarray:
         cfg = self.cfg
         Q = np.zeros((DIM, DIM))
         q = sigma**2
@@ -198,6 +200,6 @@ class NavFilter:
         Q[ANCHOR, ANCHOR] = np.eye(3) * cfg.vo_drift_m_per_sqrt_m**2 * speed * dt
         Q[LOG_SCALE, LOG_SCALE] = cfg.scale_walk_per_sqrt_s**2 * dt
         Q[THETA, THETA] = np.eye(3) * np.radians(cfg.alignment_walk_deg_per_sqrt_s) ** 2 * dt
-        Q[GROUND, GROUND] = cfg.ground_walk_m_per_sqrt_s**2 * dt * (1.0 + speed)
+        Q[GROUND, GROUND] = cfg.ground_walk_m_per_sqrt_m**2 * horizontal_speed * dt
         Q[BARO, BARO] = cfg.baro_walk_m_per_sqrt_s**2 * dt
         return Q
