@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import typing
 
 import numpy as np
 import pytest
@@ -122,6 +123,11 @@ def test_rotation_exp_log_match_scipy() -> None:
         R = Rotation.from_rotvec(v).as_matrix()
         assert rotvec_to_matrix(v) == pytest.approx(R, abs=1e-12)
         assert matrix_to_rotvec(R) == pytest.approx(v, abs=1e-7)
+
+
+def test_config_fields_are_plain_toml_values() -> None:
+    hints = typing.get_type_hints(FusionConfig)
+    assert set(hints.values()) <= {int, float, bool}
 
 
 def test_config_rejects_nonsense() -> None:
