@@ -141,3 +141,23 @@ def test_camera_loss_is_reported():
         assert wait_for(lambda: source.opens >= 3, 2.0)  # still retrying
         run.stop()
     assert "VIO: camera lost" in [r.msg.text for r in sim.messages("STATUSTEXT")]
+
+
+def test_statustext_rate_limit_merges_changes():
+    from daemon.statustext import StatusTexts
+
+    sent = []
+    texts = StatusTexts(1.0, lambda severity, text: sent.append((severity, text)) or True)
+    texts.report("tracking good", 0.0)
+    for i, state in enumerate(["tracking weak", "tracking bad", "tracking lost"]):
+        texts.report(state, 0.1 + 0.1 * i, severity=2)
+    texts.flush(0.5)
+    assert sent == [(6, "VIO: tracking good")]
+    texts.flush(1.0)
+    assert sent[-1] == (2, "VIO: tracking lost") and len(sent) == 2 and texts.merged == 2
+    texts.report("tracking lost", 5.0)  # no change: nothing sent
+    texts.report("x" * 80, 5.0)
+    assert len(sent) == 3 and len(sent[-1][1]) == 50
+    offline = StatusTexts(1.0, lambda severity, text: False)
+    offline.report("tracking good", 0.0)
+    assert offline.pending is not None  # kept until the link takes it

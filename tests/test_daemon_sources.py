@@ -169,3 +169,35 @@ def test_gstreamer_pipeline_without_gstreamer_says_so():
         pytest.skip("this OpenCV has GStreamer")
     with pytest.raises(OSError, match="no GStreamer"):
         OpenCVSource("videotestsrc ! videoconvert ! appsink").open()
+
+
+def test_camera_that_fails_mid_stream_is_reopened():
+    """A device that stops delivering (unplugged) is closed and reopened; frames resume."""
+
+    class Flaky(TestPatternSource):
+        def __init__(self):
+            super().__init__(64, 48, fps=100.0)
+            self.opens = self.reads = 0
+
+        def open(self):
+            self.opens += 1
+            super().open()
+
+        def read(self):
+            self.reads += 1
+            if self.reads % 10 == 0:
+                raise OSError("frame grab failed (device unplugged?)")
+            return super().read()
+
+    source, slot, states = Flaky(), LatestSlot(), []
+    thread = CaptureThread(source, slot, (0.01, 0.02), on_state=states.append)
+    thread.start()
+    frames = []
+    while len(frames) < 25:
+        frame = slot.get(1.0)
+        assert frame is not None
+        frames.append(frame)
+    thread.stop()
+    thread.join(1.0)
+    assert source.opens >= 3 and states.count("no camera") >= 2
+    assert [f.index for f in frames] == sorted({f.index for f in frames})
