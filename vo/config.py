@@ -29,6 +29,8 @@ class TrackerConfig:
     align2d_iterations: int = 10
     track_candidates: bool = True
     candidate_min_updates: int = 3
+    # search along the epipolar segment when direct alignment of a converged point fails
+    track_search_fallback: bool = True
     pose_iterations: int = 10
     reprojection_inlier_px: float = 2.0
     constant_velocity: bool = True

@@ -73,7 +73,7 @@ def closest_views(params, idx, pos_w, host, hu, hv, hlevel, host_only, start, or
 @numba.njit(cache=True, nogil=True)
 def match_in_cells(params, order, px, cell, T_c_w, host, huv, hlevel, f, depth, rho, sigma,
                    search, kf_pyr, kf_T_c_w, pyr_off, pyr_w, pyr_h, cur_flat, corners,
-                   max_level, max_matches, iterations, margin, threshold):
+                   max_level, max_matches, iterations, margin, threshold, fallback):
     """Try points in `order` (grouped by cell, best first); the first success closes its cell.
 
     Points flagged `search` (uncertain depth) are searched along their epipolar segment
@@ -108,6 +108,15 @@ def match_in_cells(params, order, px, cell, T_c_w, host, huv, hlevel, f, depth, 
                 params, kf_pyr[s], pyr_off, pyr_w, pyr_h, huv[k, 0], huv[k, 1], hlevel[k], f[k],
                 depth[k], T_cur_ref, cur_flat, pyr_off, pyr_w, pyr_h, px[k, 0], px[k, 1],
                 max_level, iterations)
+            if not ok and fallback and corners[0].shape[0] > 0:
+                # prediction too far off for direct alignment: search FAST corners along
+                # the point's (short) epipolar segment as the thesis matcher does
+                r = 1.0 / depth[k]
+                u, v, level, ok = match_epipolar(
+                    params, kf_pyr[s], pyr_off, pyr_w, pyr_h, huv[k, 0], huv[k, 1], hlevel[k],
+                    f[k], r, r * max(sigma[k] / rho[k], 0.05), T_cur_ref, cur_flat, pyr_off,
+                    pyr_w, pyr_h, corners[0], corners[1], corners[2], corners[3], corners[4],
+                    min(max_level, 2), 2.0 * margin, threshold, iterations)
         if ok:
             done[cell[k]] = True
             out_k[m] = k
@@ -157,7 +166,7 @@ class Reprojector:
             params, idx, pts.pos_w, pts.host[idx], pts.u[idx], pts.v[idx], pts.level[idx], search,
             start, obs_order, obs.kf, obs.uv, obs.level, kf_T_c_w, frame.position)
         pyr = frame.pyr
-        if search.any():
+        if search.any() or config.track_search_fallback:
             c = frame.corners(config.fast_threshold)
             corners = (c.x, c.y, c.xn, c.yn, c.row_start)
         else:
@@ -167,5 +176,6 @@ class Reprojector:
             params, order, px, cell, frame.T_c_w, slot, ref_uv, ref_level, f, depth,
             pts.rho[idx], pts.sigma[idx], search, kf_pyr, kf_T_c_w, pyr.offsets, pyr.widths,
             pyr.heights, pyr.flat, corners, config.pyramid_levels - 1, config.max_matches,
-            config.align2d_iterations, config.epipolar_margin_px, config.zmssd_threshold)
+            config.align2d_iterations, config.epipolar_margin_px, config.zmssd_threshold,
+            config.track_search_fallback)
         return idx[k], uv, level, len(idx), int(attempted.sum()), idx[attempted]

@@ -181,9 +181,9 @@ class Tracker:
         t0 = time.perf_counter()
         self._align(frame, last)
         timings["align"] = _ms(t0)
-        if cfg.track_candidates:
+        if cfg.track_candidates or cfg.track_search_fallback:
             t0 = time.perf_counter()
-            frame.corners(cfg.fast_threshold)  # the epipolar search of candidates needs them
+            frame.corners(cfg.fast_threshold)  # for epipolar searches
             timings["corners"] = _ms(t0)
         t0 = time.perf_counter()
         ids, uv, levels, n_visible, n_attempts, attempted = self._reproject(frame)
