@@ -116,7 +116,7 @@ class TrackerOptions:
     fps: float = 30.0
     start_s: float = 1.5
     scale: float = 0.27  # VO units per metre
-    noise_m: float = 0.01
+    noise_m: float = 0.02
     drift_per_sqrt_m: float = 0.01
     scale_walk_per_sqrt_s: float = 0.002
     rot_walk_deg_per_sqrt_s: float = 0.05

@@ -31,12 +31,12 @@ class AlignmentGate:
         self.last_text_t = float("-inf")
         self.last_text = ""
 
-    @staticmethod
-    def spreads(f: NavFilter) -> tuple[float, float]:
-        """(relative scale std, heading std in degrees)."""
+    def spreads(self, f: NavFilter) -> tuple[float, float]:
+        """(relative scale std, heading std in degrees, including the compass bias)."""
         P = f.P
+        heading_var = max(P[HEADING, HEADING], 0.0) + np.radians(self.cfg.heading_bias_std_deg)**2
         return (float(np.sqrt(max(P[LOG_SCALE, LOG_SCALE], 0.0))),
-                float(np.degrees(np.sqrt(max(P[HEADING, HEADING], 0.0)))))
+                float(np.degrees(np.sqrt(heading_var))))
 
     def update(self, f: NavFilter, t: float) -> bool:
         """True when estimates at time t may be published."""

@@ -41,6 +41,7 @@ class FusionConfig:
     # autopilot attitude (ATTITUDE): roll/pitch and compass heading noise
     attitude_std_deg: float = 1.0
     heading_std_deg: float = 3.0
+    heading_bias_std_deg: float = 1.0  # compass bias: averaging cannot remove it
     attitude_timeout_s: float = 0.5
     alignment_walk_deg_per_sqrt_s: float = 0.05  # VO rotation drift against the autopilot's
     scale_walk_per_sqrt_s: float = 0.002  # ln(scale) random walk (scale drift of the map)
@@ -86,7 +87,8 @@ class FusionConfig:
         for key in positive:
             if not getattr(self, key) > 0:
                 raise InputError(f"fusion.{key} must be > 0", path)
-        non_negative = ("min_aligned_s", "vo_drift_m_per_sqrt_m", "alignment_walk_deg_per_sqrt_s",
+        non_negative = ("min_aligned_s", "heading_bias_std_deg", "vo_drift_m_per_sqrt_m",
+                        "alignment_walk_deg_per_sqrt_s",
                         "scale_walk_per_sqrt_s", "accel_bias_walk", "range_std_fraction",
                         "ground_walk_m_per_sqrt_m", "baro_walk_m_per_sqrt_s")
         for key in non_negative:

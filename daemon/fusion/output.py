@@ -35,6 +35,9 @@ def build_estimate(f: NavFilter, cfg: FusionConfig, *, R_w_b: np.ndarray, rot_co
     pose_cov = np.diag(floor).astype(float)
     pose_cov[:3, :3] += factor * f.P[POS, POS]
     pose_cov[3:, 3:] += factor * (f.P[THETA, THETA] + f.R_nom @ rot_cov_w @ f.R_nom.T)
+    # the compass bias is in the heading, not in the position: the local frame is the
+    # compass's, like the autopilot's own, so the bias would only weaken vision far from home
+    pose_cov[5, 5] += np.radians(cfg.heading_bias_std_deg) ** 2
     vel_cov = np.zeros((6, 6))
     vel_cov[:3, :3] = factor * (R_l_b.T @ f.P[VEL, VEL] @ R_l_b)
     vel_cov[3:, 3:] = np.eye(3) * cfg.rate_std_rad_s**2
