@@ -29,6 +29,8 @@ class TrackerConfig:
     align2d_iterations: int = 10
     track_candidates: bool = True
     candidate_min_updates: int = 3
+    # a map point is dropped after this many failed matches (and more failures than finds)
+    point_max_missed: int = 10
     # search along the epipolar segment when direct alignment of a converged point fails
     track_search_fallback: bool = True
     pose_iterations: int = 10

@@ -210,6 +210,10 @@ class Tracker:
         pts.n_found[ids[inlier]] += 1
         missed = np.setdiff1d(attempted, ids)
         pts.n_missed[missed] += 1
+        # points that keep failing (occluded, badly placed, moving) leave the map
+        hopeless = (pts.n_missed[missed] > cfg.point_max_missed) & (
+            pts.n_missed[missed] > 2 * pts.n_found[missed])
+        pts.delete(missed[hopeless])
         self.motion = frame.T_c_w @ inv_se3(last.T_c_w)
         self.last = frame
         self.frames_since_kf += 1
