@@ -18,16 +18,13 @@ class AttitudeTrack:
         self.samples: list[Attitude] = []
 
     def add(self, sample: Attitude) -> None:
+        """Insert a sample in time order and forget those older than keep_s."""
         i = bisect.bisect_right(self.times, sample.t)
         self.times.insert(i, sample.t)
         self.samples.insert(i, sample)
         cut = bisect.bisect_left(self.times, self.times[-1] - self.keep_s)
         if cut:
             del self.times[:cut], self.samples[:cut]
-
-    def clear(self) -> None:
-        self.times.clear()
-        self.samples.clear()
 
     def at(self, t: float) -> Attitude | None:
         """The attitude at time t: interpolated between neighbours, or the nearest sample
@@ -49,5 +46,6 @@ class AttitudeTrack:
 
     @property
     def latest(self) -> Attitude | None:
+        """The newest sample, if any."""
         return self.samples[-1] if self.samples else None
 

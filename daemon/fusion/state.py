@@ -76,14 +76,17 @@ class NavFilter:
 
     @property
     def x(self) -> np.ndarray:
+        """The state vector (see the module docstring for its layout)."""
         return self.ekf.x
 
     @property
     def P(self) -> np.ndarray:
+        """The state covariance."""
         return self.ekf.P
 
     @property
     def scale(self) -> float:
+        """Metres per tracker unit of the current map."""
         return float(np.exp(self.x[LOG_SCALE]))
 
     def snapshot(self) -> tuple:

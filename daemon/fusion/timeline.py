@@ -40,6 +40,7 @@ class Timeline:
         self._seq = itertools.count()
 
     def add(self, t: float, kind: str, data: object) -> None:
+        """Queue an event of `kind` at time t."""
         bisect.insort(self.pending, Event(t, next(self._seq), kind, data))
 
     def run(self, until: float, now_t: float | None, apply: Callable[[Event], None],
