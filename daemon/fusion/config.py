@@ -59,14 +59,14 @@ class FusionConfig:
     range_std_fraction: float = 0.01
     range_max_tilt_deg: float = 30.0
     ground_walk_m_per_sqrt_m: float = 0.05  # terrain height change per sqrt(metre flown)
-    # barometer (SCALED_PRESSURE / HIGHRES_IMU pressure)
+    # barometer (SCALED_PRESSURE, HIGHRES_IMU pressure or PX4 ALTITUDE)
     use_baro: bool = True
     baro_std_m: float = 0.3
     baro_walk_m_per_sqrt_s: float = 0.02
     # outlier rejection: chi-square gate per measurement (99.9 % for 1 and 3 dof are 10.8, 16.3)
     gate_chi2_1dof: float = 10.8
     gate_chi2_3dof: float = 16.3
-    reset_after_rejections: int = 10  # consecutive range/baro rejections: re-reference them
+    reset_after_rejections: int = 10  # in a row: re-reference range/baro, re-align the map
     # timing
     history_s: float = 1.0  # late messages up to this old are fused by replaying the filter
     clock_offset_window_s: float = 10.0
