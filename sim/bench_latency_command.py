@@ -11,18 +11,14 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import multiprocessing
-import multiprocessing.connection
 import time
-
-import numpy as np
 
 from daemon.camera import SequenceSource, TestPatternSource
 from daemon.config import Config, load_config, replace
 from daemon.run_command import camera_model, setup_logging, tracker_factory
 from daemon.service import Service
-from daemon.tracking import TrackedFrame
-from sim.autopilot import SimAutopilot, SimOptions
+from sim.replay.autopilot_process import AutopilotProcess
+from sim.replay.recording import Recorder, stats_ms
 
 TARGET_MS = 5.0
 
@@ -43,30 +39,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
-class Recorder:
-    """Per-frame timings from the service's on_tracked hook."""
-
-    def __init__(self) -> None:
-        self.rows: list[dict] = []
-
-    def __call__(self, tf: TrackedFrame, sent: bool) -> None:
-        now = time.monotonic()
-        self.rows.append({"t_capture": tf.t_capture, "wait": tf.t_start - tf.t_capture,
-                          "track": tf.track_s, "sent": sent,
-                          "estimate": tf.t_done - tf.t_start - tf.track_s,
-                          "handoff": now - tf.t_done,
-                          "send": now - tf.t_capture if sent else None})
-
-
-def stats_ms(values: list[float]) -> dict:
-    """median, p95, p99 in milliseconds."""
-    a = np.asarray(values, dtype=np.float64) * 1e3
-    if a.size == 0:
-        return {"n": 0, "median": None, "p95": None, "p99": None}
-    return {"n": int(a.size), "median": float(np.median(a)),
-            "p95": float(np.percentile(a, 95)), "p99": float(np.percentile(a, 99))}
-
-
 async def measure(service: Service, recorder: Recorder, frames: int) -> None:
     """Run the service until `frames` frames were tracked or the source ended."""
     task = asyncio.create_task(service.run())
@@ -74,15 +46,6 @@ async def measure(service: Service, recorder: Recorder, frames: int) -> None:
         await asyncio.sleep(0.1)
     service.stop()
     await task
-
-
-def autopilot_process(conn: multiprocessing.connection.Connection) -> None:
-    """The simulated autopilot in its own process (a real one does not share our GIL): sends
-    its URL, then on request the ODOMETRY (stamp, arrival) pairs it received."""
-    with SimAutopilot(SimOptions()) as sim:
-        conn.send(sim.url)
-        conn.recv()
-        conn.send([(r.msg.time_usec / 1e6, r.t) for r in sim.messages("ODOMETRY")])
 
 
 def report(recorder: Recorder, received: list, warmup: int, service: Service) -> dict:
@@ -136,13 +99,9 @@ def run(args: argparse.Namespace) -> int:
         source = SequenceSource(open_sequence(args.sequence), realtime=True)
     else:
         source = TestPatternSource(320, 240, args.fps)
-    conn, child_conn = multiprocessing.Pipe()
-    autopilot = multiprocessing.Process(target=autopilot_process, args=(child_conn,),
-                                        daemon=True)
-    autopilot.start()
+    autopilot = AutopilotProcess()
     try:
-        url = conn.recv()
-        config = replace(config, mavlink={"link": url, "output": "odometry"},
+        config = replace(config, mavlink={"link": autopilot.url, "output": "odometry"},
                          camera={"source": "testpattern", "calibration": ""})
         if args.inline_mapping:
             config = replace(config, service={"mapping_thread": False})
@@ -151,10 +110,11 @@ def run(args: argparse.Namespace) -> int:
         service = Service(config, source, make_tracker, on_tracked=recorder)
         asyncio.run(measure(service, recorder, args.frames + args.warmup))
         time.sleep(0.2)
-        conn.send("stop")
-        result = report(recorder, conn.recv(), args.warmup, service)
     finally:
-        autopilot.join(5.0)
+        received = autopilot.finish()
+    odometry = [(m.fields["time_usec"] / 1e6, m.t_arrival) for m in received
+                if m.kind == "ODOMETRY"]
+    result = report(recorder, odometry, args.warmup, service)
     if args.json:
         print(json.dumps(result, indent=2))
     else:

@@ -8,6 +8,7 @@ import numpy as np
 
 from calib.errors import InputError
 from sim.metrics import Aligned
+from sim.trajectory import Trajectory
 
 
 def _figure(rows: int, cols: int, size: tuple[float, float]):
@@ -46,6 +47,11 @@ def plot_evaluation(aligned: Aligned, path: str | Path, title: str) -> None:
     ax_err.set_ylabel("position error [m]")
     ax_err.set_title("absolute trajectory error")
     ax_err.grid(True, alpha=0.3)
+    _save(plt, fig, title, path)
+
+
+def _save(plt, fig, title: str, path: str | Path) -> None:
+    """Title, layout and PNG file; InputError when it cannot be written."""
     fig.suptitle(title)
     fig.tight_layout()
     try:
@@ -54,3 +60,37 @@ def plot_evaluation(aligned: Aligned, path: str | Path, title: str) -> None:
         raise InputError(f"cannot write plot: {exc.strerror}", path) from None
     finally:
         plt.close(fig)
+
+
+def plot_replay(aligned: Aligned, flight: Trajectory, path: str | Path, title: str) -> None:
+    """A replay at a glance: top view of the flight and the received poses (aligned), height
+    over time (NED -z) and position error over time."""
+    est = aligned.estimate
+    t0 = flight.t[0]
+    a, b = top_view_axes(flight.positions)
+    names = "xyz"
+    plt, fig, (ax_top, ax_alt, ax_err) = _figure(1, 3, (16, 5))
+    ax_top.plot(flight.positions[:, a], flight.positions[:, b], "k-", lw=1.5,
+                label="ground truth")
+    ax_top.plot(est.positions[:, a], est.positions[:, b], "r.", ms=2,
+                label="received (aligned)")
+    ax_top.plot(*flight.positions[0, [a, b]], "go", label="start")
+    ax_top.set_xlabel(f"{names[a]} [m]")
+    ax_top.set_ylabel(f"{names[b]} [m]")
+    ax_top.set_aspect("equal", adjustable="datalim")
+    ax_top.legend(loc="best", fontsize=9)
+    ax_top.set_title("top view")
+    ax_alt.plot(flight.t - t0, -flight.positions[:, 2], "k-", lw=1.5, label="ground truth")
+    ax_alt.plot(est.t - t0, -est.positions[:, 2], "r.", ms=2, label="received (aligned)")
+    ax_alt.set_xlabel("time [s]")
+    ax_alt.set_ylabel("height, -z [m]")
+    ax_alt.set_title("height over time")
+    ax_alt.legend(loc="best", fontsize=9)
+    error = np.linalg.norm(aligned.groundtruth.positions - est.positions, axis=1)
+    ax_err.plot(est.t - t0, error, "r-", lw=1)
+    ax_err.set_xlabel("time [s]")
+    ax_err.set_ylabel("position error [m]")
+    ax_err.set_title(f"position error (RMSE {np.sqrt(np.mean(error**2)):.3g} m)")
+    for ax in (ax_top, ax_alt, ax_err):
+        ax.grid(True, alpha=0.3)
+    _save(plt, fig, title, path)

@@ -1,0 +1,107 @@
+"""The simulated autopilot in its own process (a real one does not share the companion's GIL),
+flying a vehicle trajectory in step with the frames the replay releases.
+
+The replay's frame source publishes `clock = (t_capture - t_source, t_source)` of the newest
+frame it released into shared memory; the vehicle's time is the sequence time `now - offset`,
+held at the start pose before the first frame and never ahead of the newest frame by more than
+`MAX_LEAD_S` (so an as-fast-as-possible replay does not fly ahead of its frames).
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing
+import multiprocessing.connection
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.autopilot import SimAutopilot, SimOptions
+from sim.autopilot.vehicle import Vehicle
+from sim.trajectory import Trajectory
+
+MAX_LEAD_S = 0.1
+PAD_S = 1.0  # the trajectory is held this long at both ends, so its derivatives stay defined
+VISION = ("ODOMETRY", "VISION_POSITION_ESTIMATE", "VISION_SPEED_ESTIMATE")
+
+
+@dataclass(frozen=True)
+class VisionMessage:
+    """One vision message the autopilot received: its type, arrival time (monotonic s) and
+    fields (`msg.to_dict()`), picklable across the process boundary."""
+
+    kind: str
+    t_arrival: float
+    fields: dict
+
+
+def padded(trajectory: Trajectory) -> Trajectory:
+    """The trajectory with its first and last pose held for PAD_S seconds."""
+    t = np.concatenate([[trajectory.t[0] - PAD_S], trajectory.t, [trajectory.t[-1] + PAD_S]])
+    pos = np.vstack([trajectory.positions[:1], trajectory.positions, trajectory.positions[-1:]])
+    quat = np.vstack([trajectory.quaternions[:1], trajectory.quaternions,
+                      trajectory.quaternions[-1:]])
+    return Trajectory(t, pos, quat)
+
+
+class ReplayVehicle:
+    """A Vehicle whose time is the replay's sequence time instead of the autopilot's uptime."""
+
+    def __init__(self, trajectory: Trajectory, clock: multiprocessing.Array):
+        self.inner = Vehicle(padded(trajectory))
+        self.t_first, self.t_last = float(trajectory.t[0]), float(trajectory.t[-1])
+        self.clock = clock
+
+    def sequence_time(self) -> float:
+        """Where in the sequence the vehicle is now."""
+        offset, newest = self.clock[0], self.clock[1]
+        if math.isnan(offset):
+            return self.t_first
+        t = min(time.monotonic() - offset, newest + MAX_LEAD_S)
+        return min(max(t, self.t_first), self.t_last)
+
+    def state(self, _uptime: float) -> dict:
+        """Vehicle.state at the current sequence time (the uptime argument is ignored)."""
+        return self.inner.state(self.sequence_time() - self.inner.t0)
+
+
+def _serve(conn: multiprocessing.connection.Connection, options: SimOptions,
+           trajectory: Trajectory | None, clock: multiprocessing.Array) -> None:
+    """The child: sends the autopilot's URL, then on request the vision messages received."""
+    sim = SimAutopilot(options)
+    if trajectory is not None:
+        sim.vehicle = ReplayVehicle(trajectory, clock)
+    with sim:
+        conn.send(sim.url)
+        conn.recv()
+        conn.send([VisionMessage(r.msg.get_type(), r.t, r.msg.to_dict())
+                   for r in sim.vision])
+
+
+class AutopilotProcess:
+    """Start it, connect the service to `url`, call `finish()` for what it received."""
+
+    def __init__(self, options: SimOptions | None = None,
+                 trajectory: Trajectory | None = None):
+        self.clock = multiprocessing.Array("d", [math.nan, math.nan])
+        self._conn, child = multiprocessing.Pipe()
+        self._process = multiprocessing.Process(
+            target=_serve, args=(child, options or SimOptions(), trajectory, self.clock),
+            name="sim-autopilot", daemon=True)
+        self._process.start()
+        self.url: str = self._conn.recv()
+
+    def frame_released(self, t_source: float, t_capture: float) -> None:
+        """Tell the vehicle which sequence time the newest frame shows."""
+        self.clock[0], self.clock[1] = t_capture - t_source, t_source
+
+    def finish(self) -> list[VisionMessage]:
+        """Stop the autopilot; the vision messages it received, in arrival order."""
+        try:
+            self._conn.send("stop")
+            return self._conn.recv()
+        finally:
+            self._process.join(5.0)
+            if self._process.is_alive():
+                self._process.terminate()

@@ -1,0 +1,76 @@
+"""`sdvl replay [SEQUENCE_OR_PRESET]`: a sequence through the whole service against a simulated
+autopilot, scored on what the autopilot received.
+
+Without an argument it flies the synthetic downward preset DEFAULT_PRESET, rendered on the fly.
+The received poses and the ground truth they are scored against are written as TUM files into
+the output folder, so `sdvl eval GROUNDTRUTH RECEIVED` reproduces the ATE.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from calib.errors import InputError
+from daemon.config import Config, load_config
+from daemon.run_command import setup_logging
+from sim.replay.harness import fusion_enabled, run_replay
+from sim.replay.report import build_report, format_report
+
+DEFAULT_PRESET = "survey-down"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of `sdvl replay`."""
+    parser.add_argument("sequence", nargs="?", default=DEFAULT_PRESET,
+                        help="sequence folder, video, name of a folder in the shared data "
+                             f"($SDVL_DATA) or synthetic preset (default: {DEFAULT_PRESET})")
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument("--realtime", dest="realtime", action="store_const", const=True,
+                      help="play frames at their timestamps; tracking that falls behind drops "
+                           "frames (default with fusion on)")
+    mode.add_argument("--fast", dest="realtime", action="store_const", const=False,
+                      help="play frames as fast as tracking takes them, none dropped "
+                           "(default with fusion off)")
+    parser.add_argument("--config", type=Path, default=None,
+                        help="service config (TOML, as for sdvl run); its link and camera "
+                             "source are replaced by the replay's")
+    parser.add_argument("--max-frames", type=int, default=None, metavar="N",
+                        help="replay only the first N frames")
+    parser.add_argument("--out", type=Path, default=None, metavar="DIR",
+                        help="folder for received.txt and groundtruth.txt (TUM; default "
+                             "sdvl-replay/NAME)")
+    parser.add_argument("--plot", type=Path, default=None, metavar="OUT.png",
+                        help="write a PNG: top view, height and position error over time")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON object (keys: sim/replay/report.py KEYS)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
+    parser.add_argument("--log-level", default="warning",
+                        choices=("debug", "info", "warning", "error"),
+                        help="service log level on stderr (default warning)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Replay, report, plot."""
+    from sim.track_command import resolve_sequence
+
+    if args.max_frames is not None and args.max_frames <= 0:
+        raise InputError("--max-frames must be positive")
+    config = load_config(args.config) if args.config else Config()
+    setup_logging(args.log_level)
+    sequence = resolve_sequence(args.sequence)
+    realtime = fusion_enabled(config) if args.realtime is None else args.realtime
+    replay = run_replay(sequence, config, realtime, args.max_frames, progress=not args.quiet)
+    out_dir = args.out or Path("sdvl-replay") / sequence.name
+    report, aligned = build_report(replay, out_dir)
+    if args.plot is not None:
+        if aligned is None:
+            raise InputError("no plot: the sequence has no ground truth or too few poses "
+                             "were received")
+        from sim.plots import plot_replay
+
+        plot_replay(aligned, replay.flight, args.plot,
+                    f"sdvl replay {sequence.name}: {report['mode']}, {report['estimator']}")
+    print(json.dumps(report) if args.json else format_report(report))
+    return replay.exit_code

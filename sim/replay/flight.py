@@ -1,0 +1,38 @@
+"""The flight the simulated autopilot replays: the vehicle (body FRD) in NED from a sequence's
+camera ground truth, and the sensor streams that make sense for it.
+
+A sequence whose ground-truth world is not NED says how it relates in
+`extras["T_ned_world"]` (4x4); without it the ground-truth world is taken as NED (datasets
+recorded by hand have no gravity reference; the scores use a Sim(3) alignment then anyway).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from daemon.config import MountingConfig
+from daemon.mounting import body_from_camera
+from sim.autopilot.simulator import DEFAULT_STREAMS
+from sim.trajectory import Trajectory
+
+RANGEFINDER_M = (0.2, 40.0)  # DISTANCE_SENSOR min and max distance the simulator encodes
+
+
+def vehicle_trajectory(groundtruth: Trajectory, mounting: MountingConfig,
+                       T_ned_world: np.ndarray | None = None) -> Trajectory:
+    """T_ned_b(t) = T_ned_w T_w_c(t) T_c_b: where the body is when the camera is at T_w_c."""
+    T_ned_w = np.eye(4) if T_ned_world is None else np.asarray(T_ned_world, dtype=np.float64)
+    T_c_b = np.eye(4)
+    T_c_b[:3, :3] = body_from_camera(mounting).T
+    return Trajectory.from_matrices(groundtruth.t, T_ned_w @ groundtruth.matrices() @ T_c_b)
+
+
+def sensor_streams(flavour: str, flight: Trajectory | None) -> dict[str, float]:
+    """The flavour's streams; the rangefinder only when the whole flight stays within its
+    range above the flat ground at NED z = 0 (a hand-held dataset's 'height' means nothing)."""
+    streams = dict(DEFAULT_STREAMS[flavour])
+    if flight is not None:
+        height = -flight.positions[:, 2]
+        if height.min() < RANGEFINDER_M[0] or height.max() > RANGEFINDER_M[1]:
+            streams.pop("DISTANCE_SENSOR", None)
+    return streams

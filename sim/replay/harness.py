@@ -1,0 +1,221 @@
+"""Run a sequence through the whole service (capture thread, tracker, estimator, MAVLink link)
+against the simulated autopilot in its own process, and collect what happened.
+
+The service is built like `sdvl run` builds it (daemon.run_command); only the link points at
+the simulated autopilot and the frames come from the sequence.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import resource
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib.errors import InputError
+from daemon.camera import SequenceSource
+from daemon.config import Config, replace
+from daemon.estimate import Estimator
+from daemon.run_command import camera_model, tracker_factory
+from daemon.service import Service
+from sim.autopilot import SimOptions
+from sim.replay.autopilot_process import AutopilotProcess, VisionMessage
+from sim.replay.flight import sensor_streams, vehicle_trajectory
+from sim.replay.recording import Recorder
+from sim.trajectory import Trajectory
+
+WARMUP_FRAMES = 3
+PROGRESS_S = 0.25
+SETTLE_S = 0.3  # after the last frame, for the last messages to arrive
+RATE_MARGIN = 1.05  # fast replay: frames this much slower than the message rate limit
+
+
+@dataclass
+class FirstFrames:
+    """A sequence cut to its first `limit` frames (None: all), for SequenceSource."""
+
+    sequence: object
+    limit: int | None
+
+    @property
+    def name(self) -> str:
+        return self.sequence.name
+
+    @property
+    def camera(self) -> object:
+        return self.sequence.camera
+
+    def __len__(self) -> int:
+        n = len(self.sequence)
+        return n if self.limit is None else min(n, self.limit)
+
+    def frames(self):
+        """(t, image) of the first frames."""
+        return self.sequence.frames(self.limit)
+
+
+class ReplaySource(SequenceSource):
+    """SequenceSource that counts the frames it offers and tells the autopilot's vehicle the
+    sequence time of each. As fast as possible still means no faster than `min_interval_s`
+    (the service's vision message rate limit), so every estimate reaches the autopilot."""
+
+    def __init__(self, sequence: FirstFrames, realtime: bool, min_interval_s: float,
+                 on_frame: Callable[[float, float], None]):
+        super().__init__(sequence, realtime=realtime)
+        self.min_interval_s = 0.0 if realtime else min_interval_s * RATE_MARGIN
+        self.on_frame = on_frame
+        self.offered = 0
+        self._last_capture = -np.inf
+
+    def read(self) -> tuple[float, float, np.ndarray] | None:
+        item = super().read()
+        if item is None:
+            return None
+        t_source, t_capture, image = item
+        delay = self._last_capture + self.min_interval_s - t_capture
+        if delay > 0:
+            time.sleep(delay)
+            t_capture = time.monotonic()
+        self._last_capture = t_capture
+        self.offered += 1
+        self.on_frame(t_source, t_capture)
+        return t_source, t_capture, image
+
+
+@dataclass
+class ReplayRun:
+    """Everything the report scores."""
+
+    name: str
+    realtime: bool
+    fusion: bool
+    total_frames: int
+    offered: int
+    dropped_by_capture: int
+    rows: list[dict]  # Recorder rows, one per processed frame
+    received: list[VisionMessage]
+    flight: Trajectory | None  # vehicle ground truth (body FRD in NED)
+    wall_s: float
+    cpu_s: float
+    warmup_s: float
+    peak_rss_mb: float
+    exit_code: int
+    stats: dict = field(default_factory=dict)
+
+
+def fusion_enabled(config: Config) -> bool:
+    """Whether the service config turns the fusion EKF on (a `[fusion]` table)."""
+    fusion = getattr(config, "fusion", None)
+    return bool(fusion is not None and fusion.enabled)
+
+
+def make_estimator(config: Config) -> Estimator | None:
+    """The estimator `sdvl run` would use: the fusion EKF when enabled, else pass-through."""
+    if not fusion_enabled(config):
+        return None
+    from daemon.fusion.estimator import FusionEstimator
+
+    return FusionEstimator(config.fusion, config.mounting, config.mavlink)
+
+
+def warm_up(make_tracker: Callable, sequence: FirstFrames) -> float:
+    """Run a throwaway tracker over the first frames so compiled kernels are loaded before the
+    clock starts (a drone's service is up before it flies); returns the seconds it took."""
+    from daemon.frames import Frame
+
+    start = time.perf_counter()
+    tracker = None
+    try:
+        for i, (t, image) in enumerate(sequence.sequence.frames(WARMUP_FRAMES)):
+            frame = Frame(i, t, time.monotonic(), image)
+            tracker = tracker or make_tracker(frame)
+            tracker.process(image, t)
+    finally:
+        if tracker is not None:
+            tracker.close()
+    return time.perf_counter() - start
+
+
+class Progress:
+    """A one-line progress bar on stderr (a line per 10 % when stderr is not a terminal)."""
+
+    def __init__(self, total: int, enabled: bool):
+        self.total, self.enabled = max(total, 1), enabled
+        self.tty = sys.stderr.isatty()
+        self._last_decile = -1
+        self._start = time.monotonic()
+
+    def update(self, offered: int, processed: int, tracked: int) -> None:
+        if not self.enabled:
+            return
+        fraction = min(offered / self.total, 1.0)
+        if not self.tty:
+            decile = int(fraction * 10)
+            if decile == self._last_decile:
+                return
+            self._last_decile = decile
+        bar = "#" * int(fraction * 30)
+        line = (f"replay [{bar:<30}] {offered}/{self.total} frames, processed {processed}, "
+                f"tracked {tracked}, {time.monotonic() - self._start:.0f} s")
+        print(("\r" + line) if self.tty else line, end="" if self.tty else "\n",
+              file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self.enabled and self.tty:
+            print(file=sys.stderr, flush=True)
+
+
+async def _serve(service: Service, source: ReplaySource, recorder: Recorder,
+                 progress: Progress) -> int:
+    task = asyncio.create_task(service.run())
+    while not task.done():
+        rows = recorder.rows
+        progress.update(source.offered, len(rows), sum(r["has_pose"] for r in rows))
+        await asyncio.wait({task}, timeout=PROGRESS_S)
+    progress.close()
+    return task.result()
+
+
+def run_replay(sequence: object, config: Config, realtime: bool,
+               max_frames: int | None = None, progress: bool = True) -> ReplayRun:
+    """Play `sequence` through the service against the simulated autopilot."""
+    fusion = fusion_enabled(config)
+    if fusion and not realtime:
+        raise InputError("fusion needs --realtime: the autopilot's IMU runs on the wall clock")
+    frames = FirstFrames(sequence, max_frames)
+    flight = (vehicle_trajectory(sequence.groundtruth, config.mounting,
+                                 sequence.extras.get("T_ned_world"))
+              if sequence.groundtruth is not None else None)
+    options = SimOptions(streams=sensor_streams("ardupilot", flight))
+    autopilot = AutopilotProcess(options, flight)
+    received: list[VisionMessage] = []
+    try:
+        config = replace(config, mavlink={"link": autopilot.url},
+                         camera={"source": "testpattern", "calibration": ""})
+        source = ReplaySource(frames, realtime, 1.0 / config.mavlink.max_rate_hz,
+                              autopilot.frame_released)
+        make_tracker = tracker_factory(config, camera_model(config.camera, source))
+        warmup_s = warm_up(make_tracker, frames)
+        recorder = Recorder()
+        service = Service(config, source, make_tracker, make_estimator(config),
+                          on_tracked=recorder)
+        cpu0, wall0 = time.process_time(), time.perf_counter()
+        code = asyncio.run(_serve(service, source, recorder, Progress(len(frames), progress)))
+        wall_s, cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0
+        time.sleep(SETTLE_S)
+    finally:
+        received = autopilot.finish()
+    stats = service.stats
+    return ReplayRun(
+        name=sequence.name, realtime=realtime, fusion=fusion, total_frames=len(frames),
+        offered=source.offered, dropped_by_capture=service.capture.slot.dropped,
+        rows=recorder.rows, received=received, flight=flight, wall_s=wall_s, cpu_s=cpu_s,
+        warmup_s=warmup_s, peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        exit_code=code,
+        stats={"sent": stats.sent, "skipped_rate": stats.skipped_rate,
+               "skipped_stale": stats.skipped_stale,
+               "skipped_duplicate": stats.skipped_duplicate})

@@ -1,0 +1,255 @@
+"""Scores of a replay: what the autopilot received against the flown ground truth, the frame
+accounting, message timing, latency and resources. `build_report` returns a flat JSON-ready dict
+whose keys are stable (KEYS documents them)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from sim.metrics import Aligned, align_trajectories, evaluate, interpolate
+from sim.replay.autopilot_process import VisionMessage
+from sim.replay.harness import ReplayRun
+from sim.replay.recording import stats_ms
+from sim.trajectory import Trajectory, write_tum
+
+STAMP_TOLERANCE_S = 1e-4  # time_usec is t_capture in whole microseconds
+VELOCITY_DT = 0.05  # ground-truth velocity: central difference over +-50 ms
+
+KEYS = {
+    "sequence": "sequence or preset name",
+    "mode": "'realtime' (frames at their timestamps) or 'fast' (as fast as tracking takes them)",
+    "estimator": "'fusion' (EKF) or 'pass-through'",
+    "frames": "frames the camera source offered",
+    "processed": "frames the tracker processed",
+    "dropped": "frames offered but never processed (replaced by a newer one)",
+    "drop_fraction": "dropped / frames",
+    "tracked": "processed frames with a tracker pose",
+    "tracked_fraction": "tracked / frames",
+    "messages_received": "vision messages (ODOMETRY or VISION_POSITION_ESTIMATE) the "
+                         "autopilot received",
+    "scored": "received poses matched to ground truth",
+    "align": "'sim3' (pass-through) or 'start' (fusion: translation to the first pose only)",
+    "ate_rmse_m": "position error RMSE of the received poses after the alignment, metres",
+    "ate_max_m": "largest position error, metres",
+    "rot_rmse_deg": "attitude error RMSE after the alignment, degrees",
+    "scale": "Sim(3) scale (1 for 'start')",
+    "velocity_rmse_m_s": "velocity error RMSE of the received velocities, m/s",
+    "message_rate_hz": "received vision messages per second",
+    "message_jitter_ms": "standard deviation of the intervals between arrivals, ms",
+    "message_interval_ms_p99": "99th percentile of the intervals between arrivals, ms",
+    "latency_ms_p50": "capture-to-send latency median, ms",
+    "latency_ms_p95": "capture-to-send latency p95, ms",
+    "latency_ms_p99": "capture-to-send latency p99, ms",
+    "arrival_latency_ms_p99": "capture-to-arrival at the autopilot p99, ms",
+    "tracking_ms_median": "tracker time per processed frame, median, ms",
+    "tracking_ms_p95": "tracker time per processed frame, p95, ms",
+    "cpu_ms_per_frame": "CPU time of the companion process per processed frame, ms",
+    "peak_rss_mb": "peak resident memory of the companion process, MB",
+    "resets": "changes of reset_counter in the received messages (new map segments)",
+    "wall_s": "replay wall time (after warm-up), s",
+    "warmup_s": "tracker warm-up before the replay started, s",
+    "received_file": "TUM file of the received poses (sequence time)",
+    "groundtruth_file": "TUM file of the ground truth they are scored against",
+}
+
+
+@dataclass
+class Received:
+    """The received poses in sequence time, with what else each message carried."""
+
+    trajectory: Trajectory
+    velocity_local: np.ndarray  # (N, 3) in the message's local frame; NaN rows when absent
+    t_capture: np.ndarray
+    t_arrival: np.ndarray
+    resets: int
+
+
+def _pose_messages(received: list[VisionMessage]) -> list[VisionMessage]:
+    odometry = [m for m in received if m.kind == "ODOMETRY"]
+    return odometry or [m for m in received if m.kind == "VISION_POSITION_ESTIMATE"]
+
+
+def _pose(m: VisionMessage) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """position, quaternion xyzw, velocity in the local frame."""
+    f = m.fields
+    position = np.array([f["x"], f["y"], f["z"]])
+    if m.kind == "ODOMETRY":
+        w, x, y, z = f["q"]
+        rot = Rotation.from_quat([x, y, z, w])
+        velocity = rot.apply([f["vx"], f["vy"], f["vz"]])
+    else:
+        rot = Rotation.from_euler("ZYX", [f["yaw"], f["pitch"], f["roll"]])
+        velocity = np.full(3, np.nan)
+    return position, rot.as_quat(), velocity
+
+
+def received_poses(received: list[VisionMessage], rows: list[dict]) -> Received:
+    """The pose messages in arrival order, each placed at its frame's sequence time (matched
+    through the capture time it carries)."""
+    messages = _pose_messages(received)
+    speeds = {m.fields["usec"]: m.fields for m in received if m.kind == "VISION_SPEED_ESTIMATE"}
+    capture = np.array([r["t_capture"] for r in rows])
+    source = np.array([r["t_source"] for r in rows])
+    order = np.argsort(capture)
+    capture, source = capture[order], source[order]
+    keep, t, pos, quat, vel, t_cap, arrival, counters = [], [], [], [], [], [], [], []
+    for m in messages:
+        stamp = (m.fields["time_usec"] if m.kind == "ODOMETRY" else m.fields["usec"]) / 1e6
+        k = int(np.clip(np.searchsorted(capture, stamp), 1, max(len(capture) - 1, 1)))
+        near = min((k - 1, k), key=lambda i: abs(capture[i] - stamp)) if len(capture) > 1 else 0
+        if not len(capture) or abs(capture[near] - stamp) > STAMP_TOLERANCE_S:
+            continue
+        p, q, v = _pose(m)
+        if m.kind != "ODOMETRY" and m.fields["usec"] in speeds:
+            s = speeds[m.fields["usec"]]
+            v = np.array([s["x"], s["y"], s["z"]])
+        keep.append(m)
+        t.append(source[near])
+        pos.append(p)
+        quat.append(q)
+        vel.append(v)
+        t_cap.append(capture[near])
+        arrival.append(m.t_arrival)
+        counters.append(m.fields["reset_counter"])
+    resets = int(np.count_nonzero(np.diff(counters))) if counters else 0
+    return Received(Trajectory(np.array(t), np.array(pos).reshape(-1, 3),
+                               np.array(quat).reshape(-1, 4)),
+                    np.array(vel).reshape(-1, 3), np.array(t_cap), np.array(arrival), resets)
+
+
+def start_aligned(flight: Trajectory, estimate: Trajectory) -> Trajectory:
+    """The flight translated so it passes through the first received position (the fusion's
+    local NED frame has its origin where the vehicle was at its first tracked frame)."""
+    at_start, _ = interpolate(flight, estimate.t[:1])
+    shift = estimate.positions[0] - at_start.positions[0]
+    return Trajectory(flight.t, flight.positions + shift, flight.quaternions)
+
+
+def velocity_at(trajectory: Trajectory, times: np.ndarray) -> np.ndarray:
+    """Ground-truth velocity by central differences of the interpolated positions."""
+    def at(ts: np.ndarray) -> np.ndarray:
+        return np.column_stack([np.interp(ts, trajectory.t, trajectory.positions[:, i])
+                                for i in range(3)])
+    return (at(times + VELOCITY_DT) - at(times - VELOCITY_DT)) / (2 * VELOCITY_DT)
+
+
+def velocity_rmse(aligned: Aligned, received: Received, groundtruth: Trajectory) -> float | None:
+    """RMSE of the received velocities, rotated and scaled by the alignment, m/s."""
+    index = np.searchsorted(received.trajectory.t, aligned.estimate.t)
+    v = received.velocity_local[index]
+    ok = np.all(np.isfinite(v), axis=1)
+    if not ok.any():
+        return None
+    v_gt = velocity_at(groundtruth, aligned.estimate.t[ok])
+    error = aligned.scale * v[ok] @ aligned.R.T - v_gt
+    return float(np.sqrt(np.mean(np.sum(error**2, axis=1))))
+
+
+def _ms(value: float | None) -> float | None:
+    return None if value is None else float(value)
+
+
+def frame_counts(run: ReplayRun) -> dict:
+    """Frame accounting."""
+    processed = len(run.rows)
+    tracked = sum(r["has_pose"] for r in run.rows)
+    frames = run.offered
+    return {"frames": frames, "processed": processed, "dropped": frames - processed,
+            "drop_fraction": (frames - processed) / frames if frames else None,
+            "tracked": tracked, "tracked_fraction": tracked / frames if frames else None}
+
+
+def timing(run: ReplayRun, received: Received) -> dict:
+    """Message rate and jitter, latencies, tracking time, CPU and memory."""
+    intervals = np.diff(received.t_arrival) * 1e3
+    span = received.t_arrival[-1] - received.t_arrival[0] if len(intervals) else 0.0
+    send = stats_ms([r["send"] for r in run.rows if r["sent"]])
+    arrival = stats_ms(list(received.t_arrival - received.t_capture))
+    track = stats_ms([r["track"] for r in run.rows if r["quality"] != "initializing"])
+    processed = len(run.rows)
+    return {
+        "message_rate_hz": len(intervals) / span if span > 0 else None,
+        "message_jitter_ms": float(np.std(intervals)) if len(intervals) else None,
+        "message_interval_ms_p99": (float(np.percentile(intervals, 99))
+                                    if len(intervals) else None),
+        "latency_ms_p50": _ms(send["median"]), "latency_ms_p95": _ms(send["p95"]),
+        "latency_ms_p99": _ms(send["p99"]), "arrival_latency_ms_p99": _ms(arrival["p99"]),
+        "tracking_ms_median": _ms(track["median"]), "tracking_ms_p95": _ms(track["p95"]),
+        "cpu_ms_per_frame": 1e3 * run.cpu_s / processed if processed else None,
+        "peak_rss_mb": run.peak_rss_mb,
+    }
+
+
+def accuracy(run: ReplayRun, received: Received,
+             out_dir: Path | None) -> tuple[dict, Aligned | None, Trajectory | None]:
+    """ATE, rotation and velocity errors, and the two TUM files `sdvl eval` agrees with."""
+    align = "start" if run.fusion else "sim3"
+    est = received.trajectory
+    out = {"scored": 0, "align": align, "ate_rmse_m": None, "ate_max_m": None,
+           "rot_rmse_deg": None, "scale": None, "velocity_rmse_m_s": None,
+           "received_file": None, "groundtruth_file": None}
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        out["received_file"] = str(out_dir / "received.txt")
+        write_tum(est, out["received_file"])
+    if run.flight is None or len(est) < 3:
+        return out, None, None
+    groundtruth = start_aligned(run.flight, est) if run.fusion else run.flight
+    method = "none" if run.fusion else "sim3"
+    if out_dir is not None:
+        out["groundtruth_file"] = str(out_dir / "groundtruth.txt")
+        write_tum(groundtruth, out["groundtruth_file"])
+    ev = evaluate(groundtruth, est, method)
+    aligned = align_trajectories(groundtruth, est, method)
+    out.update(scored=ev.matched, ate_rmse_m=ev.ate_rmse_m, ate_max_m=ev.ate_max_m,
+               rot_rmse_deg=ev.rot_rmse_deg, scale=ev.scale,
+               velocity_rmse_m_s=velocity_rmse(aligned, received, groundtruth))
+    return out, aligned, groundtruth
+
+
+def build_report(run: ReplayRun, out_dir: Path | None) -> tuple[dict, Aligned | None]:
+    """The report dictionary (keys: KEYS) and the aligned trajectories for the plot."""
+    received = received_poses(run.received, run.rows)
+    scores, aligned, _ = accuracy(run, received, out_dir)
+    report = {"sequence": run.name, "mode": "realtime" if run.realtime else "fast",
+              "estimator": "fusion" if run.fusion else "pass-through",
+              **frame_counts(run), "messages_received": len(received.t_arrival),
+              **scores, **timing(run, received), "resets": received.resets,
+              "wall_s": run.wall_s, "warmup_s": run.warmup_s}
+    return {key: report[key] for key in KEYS}, aligned
+
+
+def _num(value: float | None, fmt: str) -> str:
+    return "n/a" if value is None else format(value, fmt)
+
+
+def _pct(value: float | None) -> str:
+    return "n/a" if value is None else f"{100 * value:.1f}%"
+
+
+def format_report(r: dict) -> str:
+    """Human-readable lines of a report."""
+    return "\n".join([
+        f"replay     {r['sequence']} ({r['mode']}, {r['estimator']}), {r['wall_s']:.1f} s",
+        f"frames     {r['frames']} offered, {r['processed']} processed, {r['dropped']} dropped "
+        f"({_pct(r['drop_fraction'])})",
+        f"tracked    {r['tracked']} ({_pct(r['tracked_fraction'])}), "
+        f"resets {r['resets']}",
+        f"received   {r['messages_received']} vision messages, "
+        f"{_num(r['message_rate_hz'], '.1f')} Hz, jitter {_num(r['message_jitter_ms'], '.1f')} ms"
+        f" (interval p99 {_num(r['message_interval_ms_p99'], '.1f')} ms)",
+        f"ATE RMSE   {_num(r['ate_rmse_m'], '.4f')} m ({r['align']} alignment, scale "
+        f"{_num(r['scale'], '.4g')}, max {_num(r['ate_max_m'], '.4f')} m, {r['scored']} poses); "
+        f"rotation {_num(r['rot_rmse_deg'], '.2f')} deg",
+        f"velocity   RMSE {_num(r['velocity_rmse_m_s'], '.3f')} m/s",
+        f"latency    capture-to-send p50 {_num(r['latency_ms_p50'], '.1f')} / p95 "
+        f"{_num(r['latency_ms_p95'], '.1f')} / p99 {_num(r['latency_ms_p99'], '.1f')} ms; "
+        f"to arrival p99 {_num(r['arrival_latency_ms_p99'], '.1f')} ms",
+        f"compute    tracking median {_num(r['tracking_ms_median'], '.1f')} ms (p95 "
+        f"{_num(r['tracking_ms_p95'], '.1f')}), CPU {_num(r['cpu_ms_per_frame'], '.1f')} ms per "
+        f"frame, peak RSS {r['peak_rss_mb']:.0f} MB",
+    ])
