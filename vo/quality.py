@@ -7,7 +7,8 @@ from vo.config import TrackerConfig
 
 def classify(n_matches: int, n_attempts: int, config: TrackerConfig) -> str:
     """'good' when matched/attempted > ratio; 'bad' when not and matches < minimum; else
-    'insufficient'."""
+    'insufficient'. The tracker counts as matched the matches that survive the pose
+    refinement (inliers)."""
     ratio = n_matches / n_attempts if n_attempts > 0 else 0.0
     if ratio > config.quality_min_ratio:
         return "good"

@@ -189,20 +189,24 @@ class Tracker:
         ids, uv, levels, n_visible, n_attempts, attempted = self._reproject(frame)
         timings["reproject"] = _ms(t0)
         n_matches = len(ids)
-        quality = classify(n_matches, n_attempts, cfg)
-        if n_matches < MIN_POSE_MATCHES:
+        inlier = np.zeros(n_matches, dtype=bool)
+        if n_matches >= MIN_POSE_MATCHES:
+            t0 = time.perf_counter()
+            T, H, sigma, err = self._optimize(frame, ids, uv, levels)
+            inlier = err * np.sqrt(self.camera.fx * self.camera.fy) < cfg.reprojection_inlier_px
+            timings["pose"] = _ms(t0)
+        # a match counts once it survives the pose refinement
+        quality = classify(int(inlier.sum()), n_attempts, cfg)
+        if inlier.sum() < MIN_POSE_MATCHES:
             quality = "bad"
-        result = FrameResult(frame.t, None, quality, n_matches=n_matches, n_attempts=n_attempts)
+        result = FrameResult(frame.t, None, quality, n_matches=n_matches, n_attempts=n_attempts,
+                             n_inliers=int(inlier.sum()))
         if quality == "bad":
             if self.lost.update(quality):
                 self._on_lost()
                 result.quality = "lost"
             return result, False
         self.lost.update(quality)
-        t0 = time.perf_counter()
-        T, H, sigma, err = self._optimize(frame, ids, uv, levels)
-        inlier = err * np.sqrt(self.camera.fx * self.camera.fy) < cfg.reprojection_inlier_px
-        timings["pose"] = _ms(t0)
         frame.T_c_w = orthonormalized(T)
         frame.set_features(ids[inlier], uv[inlier], levels[inlier])
         frame.n_visible = n_visible
@@ -224,7 +228,6 @@ class Tracker:
             self.kf_visible = n_seen
         result.T_w_c = frame.T_w_c
         result.covariance = pose_covariance(H, sigma, result.T_w_c)
-        result.n_inliers = int(inlier.sum())
         return result, keyframe
 
     def _need_keyframe(self, n_seen: int) -> bool:
