@@ -43,8 +43,8 @@ class FusionConfig:
     heading_std_deg: float = 3.0
     heading_bias_std_deg: float = 1.0  # compass bias: averaging cannot remove it
     attitude_timeout_s: float = 0.5
-    alignment_walk_deg_per_sqrt_s: float = 0.05  # VO rotation drift against the autopilot's
-    scale_walk_per_sqrt_s: float = 0.002  # ln(scale) random walk (scale drift of the map)
+    alignment_walk_deg_per_sqrt_s: float = 0.2  # VO rotation drift against the autopilot's
+    scale_walk_per_sqrt_s: float = 0.005  # ln(scale) random walk (scale drift of the map)
     # IMU (HIGHRES_IMU / SCALED_IMU / RAW_IMU): accelerometer noise and bias
     use_imu: bool = True
     accel_noise: float = 0.1  # m/s^2/sqrt(Hz) white noise, includes attitude error times g
