@@ -1,0 +1,51 @@
+"""Whole real sequences through the tracker (sequential mode): VAMR accuracy, TUM fr1/rpy and
+KITTI 00 run to the end with every frame accounted for."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from sim.datasets import open_sequence
+from sim.metrics import evaluate
+from sim.trajectory import Trajectory
+from vo.config import TrackerConfig
+from vo.tracker import Tracker
+
+PRESETS = Path(__file__).resolve().parents[1] / "vo" / "presets"
+
+
+def _track(path: Path, config: TrackerConfig | None = None):
+    seq = open_sequence(path)
+    tracker = Tracker(seq.camera, config)
+    t, T, qualities, segments = [], [], [], 0
+    for stamp, image in seq.frames():
+        r = tracker.process(image, stamp)
+        qualities.append(r.quality)
+        segments += r.new_segment
+        if r.has_pose:
+            assert np.all(np.isfinite(r.T_w_c)) and np.all(np.isfinite(r.covariance))
+            t.append(stamp)
+            T.append(r.T_w_c)
+    return seq, Trajectory.from_matrices(np.array(t), np.array(T)), qualities, segments
+
+
+def test_vamr_checkerboard_full(data_dir):
+    seq, est, qualities, segments = _track(data_dir / "vamr_ex01_checkerboard736")
+    assert len(qualities) == 736
+    assert len(est) >= 0.95 * 736 and segments == 1
+    assert evaluate(seq.groundtruth, est, "sim3").ate_rmse_m <= 0.010
+
+
+def test_tum_rpy_runs_through(data_dir):
+    _, est, qualities, segments = _track(data_dir / "tum_fr1_rpy")
+    assert len(qualities) == 723
+    assert segments >= 1 and len(est) >= 0.8 * 723
+
+
+def test_kitti_with_its_preset_runs_through(data_dir):
+    config = TrackerConfig.from_toml(PRESETS / "kitti_10hz.toml")
+    _, est, qualities, _ = _track(data_dir / "kitti00_first200", config)
+    assert len(qualities) == 200
+    assert len(est) >= 0.85 * 200
