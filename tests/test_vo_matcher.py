@@ -87,7 +87,7 @@ def test_epipolar_search_finds_the_true_corner(scene):
                                      ref.pyr.heights, px[i, 0], px[i, 1], 0, f[i], rho * 1.2,
                                      rho * 0.5, T_cur_ref, cur.pyr.flat, cur.pyr.offsets,
                                      cur.pyr.widths, cur.pyr.heights, c.x, c.y, c.xn, c.yn,
-                                     c.row_start, 2, 2.0, 2000.0, 10)
+                                     c.row_start, 0, 2, 2.0, 2000.0, 10)
         if ok:
             found += 1
             correct += np.hypot(u - true[i, 0], v - true[i, 1]) < 0.2

@@ -33,6 +33,9 @@ class TrackerConfig:
     point_max_missed: int = 10
     # search along the epipolar segment when direct alignment of a converged point fails
     track_search_fallback: bool = True
+    # tracking searches FAST corners from this level up (then refines at level 0), so it does
+    # not wait for full-resolution FAST; mapping searches from level 0
+    track_search_min_level: int = 1
     pose_iterations: int = 10
     reprojection_inlier_px: float = 2.0
     constant_velocity: bool = True
@@ -83,8 +86,9 @@ class TrackerConfig:
             raise InputError("pyramid_levels must be between 1 and 8")
         if not 0 <= self.align_min_level <= self.align_max_level < self.pyramid_levels:
             raise InputError("need 0 <= align_min_level <= align_max_level < pyramid_levels")
-        if self.match_max_level >= self.pyramid_levels:
-            raise InputError("match_max_level must be below pyramid_levels")
+        if not 0 <= self.track_search_min_level <= self.match_max_level < self.pyramid_levels:
+            raise InputError("need 0 <= track_search_min_level <= match_max_level < "
+                             "pyramid_levels")
         if self.grid_cell < 8 or self.max_matches < 6 or self.max_keyframes < 3:
             raise InputError("grid_cell >= 8, max_matches >= 6 and max_keyframes >= 3 required")
 

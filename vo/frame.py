@@ -39,23 +39,29 @@ class Pyramid:
         return total
 
 
+def detect_fast(image: np.ndarray, threshold: int) -> tuple[np.ndarray, np.ndarray]:
+    """FAST corners (N, 2) of one image and their scores."""
+    detector = cv2.FastFeatureDetector_create(threshold=threshold, nonmaxSuppression=True)
+    kps = detector.detect(image)
+    if not kps:
+        return np.zeros((0, 2)), np.zeros(0)
+    pts = cv2.KeyPoint_convert(kps).astype(np.float64)
+    return pts, np.fromiter((k.response for k in kps), np.float64, len(kps))
+
+
 class Corners:
-    """FAST corners of all levels, sorted by (level, row, column), with per-level row starts.
+    """FAST corners of the levels >= min_level, sorted by (level, row, column), with per-level
+    row starts (levels below min_level are left empty).
 
     Columns: `x`, `y` (level pixels), `level`, `score`, `xn`, `yn` (undistorted normalised
     image-plane coordinates), `level_start` (L+1), `row_start[l]` (height_l + 1 entries).
     """
 
-    def __init__(self, pyramid: Pyramid, camera: CameraModel, threshold: int):
-        detector = cv2.FastFeatureDetector_create(threshold=threshold, nonmaxSuppression=True)
+    def __init__(self, pyramid: Pyramid, camera: CameraModel,
+                 detections: list[tuple[np.ndarray, np.ndarray] | None]):
         xs, ys, lv, sc = [], [], [], []
-        for level, img in enumerate(pyramid.images):
-            kps = detector.detect(img)
-            if kps:
-                pts = cv2.KeyPoint_convert(kps).astype(np.float64)
-                resp = np.fromiter((k.response for k in kps), np.float64, len(kps))
-            else:
-                pts, resp = np.zeros((0, 2)), np.zeros(0)
+        for level, found in enumerate(detections):
+            pts, resp = found if found is not None else (np.zeros((0, 2)), np.zeros(0))
             order = np.lexsort((pts[:, 0], pts[:, 1]))
             xs.append(pts[order, 0])
             ys.append(pts[order, 1])
@@ -108,7 +114,8 @@ class Frame:
         self.camera = camera
         self.pyr = Pyramid(image, levels)
         self.T_c_w = np.eye(4)
-        self._corners: Corners | None = None
+        self._detections: list[tuple[np.ndarray, np.ndarray] | None] = [None] * levels
+        self._corners: dict[int, Corners] = {}
         self.feat_point = np.zeros(0, dtype=np.int64)
         self.feat_px = np.zeros((0, 2))
         self.feat_level = np.zeros(0, dtype=np.int64)
@@ -130,11 +137,17 @@ class Frame:
         """Camera centre in the world."""
         return -self.T_c_w[:3, :3].T @ self.T_c_w[:3, 3]
 
-    def corners(self, threshold: int) -> Corners:
-        """FAST corners of every level (detected on first use)."""
-        if self._corners is None:
-            self._corners = Corners(self.pyr, self.camera, threshold)
-        return self._corners
+    def corners(self, threshold: int, min_level: int = 0) -> Corners:
+        """FAST corners of the levels from min_level up (each level detected on first use)."""
+        if 0 in self._corners:
+            return self._corners[0]
+        if min_level not in self._corners:
+            for level in range(min_level, len(self._detections)):
+                if self._detections[level] is None:
+                    self._detections[level] = detect_fast(self.pyr.images[level], threshold)
+            wanted = [d if lv >= min_level else None for lv, d in enumerate(self._detections)]
+            self._corners[min_level] = Corners(self.pyr, self.camera, wanted)
+        return self._corners[min_level]
 
     def set_features(self, point: np.ndarray, px: np.ndarray, level: np.ndarray) -> None:
         """Record the map points matched in this frame and where."""

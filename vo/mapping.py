@@ -51,7 +51,7 @@ def _measure(params, ref_flat, u, v, level, f, rho, sigma, T_cur_ref, pyr_off, p
     (found, x, tau, u_cur, v_cur)."""
     uc, vc, lv, ok = match_epipolar(params, ref_flat, pyr_off, pyr_w, pyr_h, u, v, level, f,
                                     rho, sigma, T_cur_ref, cur_flat, pyr_off, pyr_w, pyr_h,
-                                    cx, cy, cxn, cyn, c_row_start, max_level, margin,
+                                    cx, cy, cxn, cyn, c_row_start, 0, max_level, margin,
                                     threshold, iterations)
     if not ok:
         return False, 0.0, 0.0, uc, vc

@@ -137,10 +137,10 @@ def _segment_distance(px, py, ax, ay, bx, by):
 @numba.njit(cache=True, nogil=True)
 def match_epipolar(params, ref_flat, ref_off, ref_w, ref_h, ref_u, ref_v, ref_level, f_ref,
                    rho, sigma, T_cur_ref, cur_flat, cur_off, cur_w, cur_h, cx, cy, cxn, cyn,
-                   c_row_start, max_level, margin_px, threshold, iterations):
+                   c_row_start, min_level, max_level, margin_px, threshold, iterations):
     """Search a point with inverse depth rho +- 2 sigma along its epipolar segment in the
     current frame, among its FAST corners (cx, cy per level, normalised cxn, cyn) of levels
-    0..max_level. Returns (u, v, level, ok) at level 0."""
+    min_level..max_level. Returns (u, v, level, ok) at level 0."""
     if not (rho > 0.0 and sigma > 0.0 and np.isfinite(rho + sigma)):
         return 0.0, 0.0, 0, False
     rho_far = max(rho - 2.0 * sigma, MIN_RHO)
@@ -176,7 +176,7 @@ def match_epipolar(params, ref_flat, ref_off, ref_w, ref_h, ref_u, ref_v, ref_le
     best_x = best_y = 0.0
     best_level = -1
     focal = params[1]
-    for level in range(max_level + 1):
+    for level in range(min_level, max_level + 1):
         if not warp_patch(ref_flat, ref_off[ref_level], ref_w[ref_level], ref_h[ref_level],
                           A_ref_cur, ref_u, ref_v, ref_level, level, patch):
             continue

@@ -73,12 +73,13 @@ def closest_views(params, idx, pos_w, host, hu, hv, hlevel, host_only, start, or
 @numba.njit(cache=True, nogil=True)
 def match_in_cells(params, order, px, cell, T_c_w, host, huv, hlevel, f, depth, rho, sigma,
                    search, kf_pyr, kf_T_c_w, pyr_off, pyr_w, pyr_h, cur_flat, corners,
-                   max_level, max_matches, iterations, margin, threshold, fallback):
+                   max_level, search_levels, max_matches, iterations, margin, threshold,
+                   fallback):
     """Try points in `order` (grouped by cell, best first); the first success closes its cell.
 
     Points flagged `search` (uncertain depth) are searched along their epipolar segment
-    (rho +- 2 sigma) among the FAST `corners` (x, y, xn, yn, row_start); the others are
-    aligned directly at their predicted position.
+    (rho +- 2 sigma) among the FAST `corners` (x, y, xn, yn, row_start) of the levels
+    search_levels (min, max); the others are aligned directly at their predicted position.
 
     Returns (matched positions into order's arrays, u, v, level, attempted mask).
     """
@@ -101,8 +102,8 @@ def match_in_cells(params, order, px, cell, T_c_w, host, huv, hlevel, f, depth, 
             u, v, level, ok = match_epipolar(
                 params, kf_pyr[s], pyr_off, pyr_w, pyr_h, huv[k, 0], huv[k, 1], hlevel[k], f[k],
                 rho[k], sigma[k], T_cur_ref, cur_flat, pyr_off, pyr_w, pyr_h, corners[0],
-                corners[1], corners[2], corners[3], corners[4], min(max_level, 2), margin,
-                threshold, iterations)
+                corners[1], corners[2], corners[3], corners[4], search_levels[0],
+                search_levels[1], margin, threshold, iterations)
         else:
             u, v, level, ok = match_direct(
                 params, kf_pyr[s], pyr_off, pyr_w, pyr_h, huv[k, 0], huv[k, 1], hlevel[k], f[k],
@@ -116,7 +117,7 @@ def match_in_cells(params, order, px, cell, T_c_w, host, huv, hlevel, f, depth, 
                     params, kf_pyr[s], pyr_off, pyr_w, pyr_h, huv[k, 0], huv[k, 1], hlevel[k],
                     f[k], r, r * max(sigma[k] / rho[k], 0.05), T_cur_ref, cur_flat, pyr_off,
                     pyr_w, pyr_h, corners[0], corners[1], corners[2], corners[3], corners[4],
-                    min(max_level, 2), 2.0 * margin, threshold, iterations)
+                    search_levels[0], search_levels[1], 2.0 * margin, threshold, iterations)
         if ok:
             done[cell[k]] = True
             out_k[m] = k
@@ -167,7 +168,7 @@ class Reprojector:
             start, obs_order, obs.kf, obs.uv, obs.level, kf_T_c_w, frame.position)
         pyr = frame.pyr
         if search.any() or config.track_search_fallback:
-            c = frame.corners(config.fast_threshold)
+            c = frame.corners(config.fast_threshold, config.track_search_min_level)
             corners = (c.x, c.y, c.xn, c.yn, c.row_start)
         else:
             corners = (np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0),
@@ -175,7 +176,8 @@ class Reprojector:
         k, uv, level, attempted = match_in_cells(
             params, order, px, cell, frame.T_c_w, slot, ref_uv, ref_level, f, depth,
             pts.rho[idx], pts.sigma[idx], search, kf_pyr, kf_T_c_w, pyr.offsets, pyr.widths,
-            pyr.heights, pyr.flat, corners, config.pyramid_levels - 1, config.max_matches,
+            pyr.heights, pyr.flat, corners, config.pyramid_levels - 1,
+            (config.track_search_min_level, config.match_max_level), config.max_matches,
             config.align2d_iterations, config.epipolar_margin_px, config.zmssd_threshold,
             config.track_search_fallback)
         return idx[k], uv, level, len(idx), int(attempted.sum()), idx[attempted]

@@ -183,7 +183,7 @@ class Tracker:
         timings["align"] = _ms(t0)
         if cfg.track_candidates or cfg.track_search_fallback:
             t0 = time.perf_counter()
-            frame.corners(cfg.fast_threshold)  # for epipolar searches
+            frame.corners(cfg.fast_threshold, cfg.track_search_min_level)  # epipolar searches
             timings["corners"] = _ms(t0)
         t0 = time.perf_counter()
         ids, uv, levels, n_visible, n_attempts, attempted = self._reproject(frame)
