@@ -15,7 +15,7 @@ from pathlib import Path
 from calib.errors import InputError
 from daemon.config import Config, load_config
 from daemon.run_command import setup_logging
-from sim.replay.harness import fusion_enabled, run_replay
+from sim.replay.harness import fusion_enabled, replayed_flight, run_replay
 from sim.replay.report import build_report, format_report
 
 DEFAULT_PRESET = "survey-down"
@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
                              "were received")
         from sim.plots import plot_replay
 
-        plot_replay(aligned, replay.flight, args.plot,
+        plot_replay(aligned, replayed_flight(replay), args.plot,
                     f"sdvl replay {sequence.name}: {report['mode']}, {report['estimator']}")
     print(json.dumps(report) if args.json else format_report(report))
     return replay.exit_code

@@ -28,7 +28,7 @@ from sim.replay.flight import sensor_streams, vehicle_trajectory
 from sim.replay.recording import Recorder
 from sim.trajectory import Trajectory
 
-WARMUP_FRAMES = 3
+WARMUP_FRAMES = 30  # enough for the map to start, so mapping kernels are loaded too
 PROGRESS_S = 0.25
 SETTLE_S = 0.3  # after the last frame, for the last messages to arrive
 RATE_MARGIN = 1.05  # fast replay: frames this much slower than the message rate limit
@@ -105,6 +105,16 @@ class ReplayRun:
     peak_rss_mb: float
     exit_code: int
     stats: dict = field(default_factory=dict)
+
+
+def replayed_flight(run: ReplayRun) -> Trajectory | None:
+    """The flight during the frames that were played (all of it with --max-frames too)."""
+    if run.flight is None or not run.rows:
+        return run.flight
+    times = [r["t_source"] for r in run.rows]
+    t = run.flight.t
+    inside = (t >= min(times)) & (t <= max(times))
+    return run.flight.subset(inside) if inside.sum() >= 2 else run.flight
 
 
 def fusion_enabled(config: Config) -> bool:

@@ -31,6 +31,7 @@ KEYS = {
     "tracked_fraction": "tracked / frames",
     "messages_received": "vision messages (ODOMETRY or VISION_POSITION_ESTIMATE) the "
                          "autopilot received",
+    "skipped_stale": "estimates not sent because they were older than mavlink.max_latency_s",
     "scored": "received poses matched to ground truth",
     "align": "'sim3' (pass-through) or 'start' (fusion: translation to the first pose only)",
     "ate_rmse_m": "position error RMSE of the received poses after the alignment, metres",
@@ -218,6 +219,7 @@ def build_report(run: ReplayRun, out_dir: Path | None) -> tuple[dict, Aligned | 
     report = {"sequence": run.name, "mode": "realtime" if run.realtime else "fast",
               "estimator": "fusion" if run.fusion else "pass-through",
               **frame_counts(run), "messages_received": len(received.t_arrival),
+              "skipped_stale": run.stats.get("skipped_stale", 0),
               **scores, **timing(run, received), "resets": received.resets,
               "wall_s": run.wall_s, "warmup_s": run.warmup_s}
     return {key: report[key] for key in KEYS}, aligned
@@ -234,12 +236,14 @@ def _pct(value: float | None) -> str:
 def format_report(r: dict) -> str:
     """Human-readable lines of a report."""
     return "\n".join([
-        f"replay     {r['sequence']} ({r['mode']}, {r['estimator']}), {r['wall_s']:.1f} s",
+        f"replay     {r['sequence']} ({r['mode']}, {r['estimator']}), {r['wall_s']:.1f} s after "
+        f"{r['warmup_s']:.1f} s tracker warm-up",
         f"frames     {r['frames']} offered, {r['processed']} processed, {r['dropped']} dropped "
         f"({_pct(r['drop_fraction'])})",
         f"tracked    {r['tracked']} ({_pct(r['tracked_fraction'])}), "
         f"resets {r['resets']}",
-        f"received   {r['messages_received']} vision messages, "
+        f"received   {r['messages_received']} vision messages ({r['skipped_stale']} estimates "
+        "too old to send), "
         f"{_num(r['message_rate_hz'], '.1f')} Hz, jitter {_num(r['message_jitter_ms'], '.1f')} ms"
         f" (interval p99 {_num(r['message_interval_ms_p99'], '.1f')} ms)",
         f"ATE RMSE   {_num(r['ate_rmse_m'], '.4f')} m ({r['align']} alignment, scale "

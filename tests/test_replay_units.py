@@ -1,0 +1,126 @@
+"""Replay building blocks: the flown vehicle, its clock, matching received messages to frames,
+the start alignment and the report's keys."""
+
+from __future__ import annotations
+
+import math
+import multiprocessing
+import time
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from calib.errors import InputError
+from daemon.config import Config, MountingConfig
+from sim.replay.autopilot_process import ReplayVehicle, VisionMessage
+from sim.replay.flight import sensor_streams, vehicle_trajectory
+from sim.replay.harness import ReplayRun, run_replay
+from sim.replay.report import KEYS, build_report, received_poses, start_aligned, velocity_at
+from sim.trajectory import Trajectory
+
+
+def line_flight(n: int = 101, height: float = 2.0) -> Trajectory:
+    """Body level, nose north, flying north at 1 m/s for n/10 seconds."""
+    t = np.arange(n) * 0.1
+    positions = np.column_stack([t, np.zeros(n), np.full(n, -height)])
+    return Trajectory(t, positions, np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)))
+
+
+def test_down_camera_ground_truth_becomes_a_level_body():
+    # a downward camera on a level body facing north: camera x = east, y = south, z = down
+    R_ned_c = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    camera = Trajectory([0.0], [[1.0, 2.0, -3.0]], Rotation.from_matrix(R_ned_c).as_quat())
+    body = vehicle_trajectory(camera, MountingConfig(preset="down"))
+    np.testing.assert_allclose(body.positions, [[1.0, 2.0, -3.0]])
+    np.testing.assert_allclose(body.rotations.as_matrix()[0], np.eye(3), atol=1e-12)
+
+
+def test_rangefinder_only_when_the_flight_stays_in_its_range():
+    assert "DISTANCE_SENSOR" in sensor_streams("ardupilot", line_flight(height=2.0))
+    assert "DISTANCE_SENSOR" not in sensor_streams("ardupilot", line_flight(height=-1.5))
+    assert "ATTITUDE" in sensor_streams("px4", None)
+
+
+def test_vehicle_holds_the_start_then_follows_the_frames():
+    clock = multiprocessing.Array("d", [math.nan, math.nan])
+    vehicle = ReplayVehicle(line_flight(), clock)
+    np.testing.assert_allclose(vehicle.state(123.0)["position"], [0.0, 0.0, -2.0], atol=1e-9)
+    now = time.monotonic()
+    clock[0], clock[1] = now - 5.0, 5.0  # frame at t=5 s released now
+    state = vehicle.state(0.0)
+    assert 5.0 <= state["position"][0] < 5.0 + 0.11  # never more than MAX_LEAD_S ahead
+    np.testing.assert_allclose(state["velocity"], [1.0, 0.0, 0.0], atol=1e-6)
+    clock[0], clock[1] = now - 99.0, 99.0  # beyond the end: hold the last pose
+    np.testing.assert_allclose(vehicle.state(0.0)["position"], [10.0, 0.0, -2.0], atol=1e-9)
+
+
+def odometry(t_capture: float, position, reset: int = 0, v_body=(0.0, 0.0, 0.0),
+             arrival: float | None = None) -> VisionMessage:
+    return VisionMessage("ODOMETRY", arrival or t_capture + 0.005, {
+        "time_usec": round(t_capture * 1e6), "x": position[0], "y": position[1],
+        "z": position[2], "q": [math.cos(0.25 * math.pi), 0.0, 0.0, math.sin(0.25 * math.pi)],
+        "vx": v_body[0], "vy": v_body[1], "vz": v_body[2], "reset_counter": reset})
+
+
+def row(t_capture: float, t_source: float, sent: bool = True) -> dict:
+    return {"t_capture": t_capture, "t_source": t_source, "wait": 0.001, "track": 0.01,
+            "sent": sent, "quality": "good", "has_pose": True, "new_segment": False,
+            "estimate": 0.0, "handoff": 0.0, "send": 0.012 if sent else None}
+
+
+def test_received_messages_are_placed_at_their_frames_sequence_time():
+    rows = [row(100.0 + 0.05 * i, 7.0 + 0.1 * i) for i in range(5)]
+    messages = [odometry(100.0 + 0.05 * i, [i, 0, 0], reset=int(i >= 3), v_body=(1.0, 0, 0))
+                for i in (0, 1, 3, 4)]
+    messages.insert(1, odometry(100.02, [9, 9, 9]))  # matches no frame: ignored
+    messages.append(VisionMessage("VISION_SPEED_ESTIMATE", 1.0, {"usec": 0}))
+    got = received_poses(messages, rows)
+    np.testing.assert_allclose(got.trajectory.t, [7.0, 7.1, 7.3, 7.4])
+    np.testing.assert_allclose(got.trajectory.positions[:, 0], [0, 1, 3, 4])
+    # body velocity (1, 0, 0) with the body yawed 90 degrees is (0, 1, 0) in the local frame
+    np.testing.assert_allclose(got.velocity_local, [[0.0, 1.0, 0.0]] * 4, atol=1e-12)
+    assert got.resets == 1
+    np.testing.assert_allclose(got.t_arrival - got.t_capture, 0.005, atol=1e-6)
+
+
+def test_start_alignment_translates_the_flight_onto_the_first_pose():
+    flight = line_flight()
+    estimate = Trajectory([2.0, 3.0], [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]],
+                          np.tile([0.0, 0.0, 0.0, 1.0], (2, 1)))
+    moved = start_aligned(flight, estimate)
+    np.testing.assert_allclose(moved.positions[20], [0.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(moved.positions[30], [1.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(velocity_at(flight, np.array([2.0, 5.0])), [[1, 0, 0]] * 2)
+
+
+def test_report_keys_are_the_documented_ones(tmp_path):
+    flight = line_flight()
+    rows = [row(200.0 + 0.1 * i, 0.1 * i) for i in range(1, 90)]
+    messages = [odometry(r["t_capture"], 2.0 * flight.positions[i + 1] + [5, 0, 0])
+                for i, r in enumerate(rows)]
+    messages = [VisionMessage(m.kind, m.t_arrival, {**m.fields, "q": [1.0, 0, 0, 0], "vx": 2.0})
+                for m in messages]  # twice the ground truth's scale, moving at 2 units/s
+    run = ReplayRun("line", False, False, 95, 95, 0, rows, messages, flight, 9.0, 1.0, 0.5,
+                    100.0, 0)
+    report, aligned = build_report(run, tmp_path)
+    assert list(report) == list(KEYS)
+    assert report["frames"] == 95 and report["processed"] == 89 and report["dropped"] == 6
+    assert report["messages_received"] == 89 and report["scored"] == 89
+    assert report["ate_rmse_m"] < 1e-9 and report["scale"] == pytest.approx(0.5)
+    assert report["velocity_rmse_m_s"] < 1e-6
+    assert report["message_rate_hz"] == pytest.approx(10.0)
+    assert aligned is not None and (tmp_path / "received.txt").is_file()
+
+
+def test_fusion_needs_realtime():
+    from dataclasses import dataclass
+
+    @dataclass(frozen=True)
+    class Fusion:
+        enabled: bool = True
+
+    config = Config()
+    object.__setattr__(config, "fusion", Fusion())
+    with pytest.raises(InputError, match="realtime"):
+        run_replay(object(), config, realtime=False)
