@@ -199,10 +199,13 @@ class FusionEstimator:
         elif event.kind == "baro":
             m.update_baro(f, event.data.altitude)
 
+    def _imu_fresh(self, t: float) -> bool:
+        f = self.filter
+        return f.accel is not None and t - f.t_accel <= self.cfg.imu_timeout_s
+
     def _propagate(self, t: float) -> None:
         f = self.filter
-        fresh = f.accel is not None and t - f.t_accel <= self.cfg.imu_timeout_s
-        att = self.attitude.at(f.t) if fresh else None
+        att = self.attitude.at(f.t) if self._imu_fresh(t) else None
         f.predict(t, f.accel if att is not None else None,
                   att.R_n_b if att is not None else None)
 
@@ -226,9 +229,9 @@ class FusionEstimator:
         R_n_b = f.R_nom @ frame.R_w_b
         if att is not None:
             m.update_alignment(f, att.R_n_b, frame.R_w_b, self._alignment_noise(f, frame))
-        if m.update_vo(f, frame.p_w, frame.pos_cov, R_n_b, factor):
+        if m.update_vo(f, frame.p_w, frame.pos_cov, R_n_b, factor, self._imu_fresh(t)):
             if np.linalg.norm(f.x[POS] - f.x[ANCHOR]) > self.cfg.reanchor_distance_m:
-                f.reanchor(frame.p_w, R_n_b, self._vo_noise_n(f, frame))
+                f.reanchor(frame.p_w, self._vo_noise_n(f, frame))
         elif f.rejections["vo"] >= self.cfg.reset_after_rejections and att is not None:
             f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, f.x[LOG_SCALE])
             f.rejections["vo"] = 0

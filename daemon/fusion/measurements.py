@@ -24,9 +24,11 @@ from daemon.fusion.state import (
 
 
 def gated_update(f: NavFilter, z: np.ndarray, h: np.ndarray, H: np.ndarray, R: np.ndarray,
-                 gate: float) -> bool:
+                 gate: float, frozen: tuple[int, slice] | None = None) -> bool:
     """One EKF update with measurement z, prediction h, Jacobian H and noise R; False (and no
-    change) when the innovation fails the chi-square gate or the result is not finite."""
+    change) when the innovation fails the chi-square gate or the result is not finite.
+    `frozen` = (state index, measurement rows): those rows must not change that state (a
+    Schmidt update: its gain is zeroed, the Joseph form keeps the covariance right)."""
     S = H @ f.P @ H.T + R
     y = z - h
     try:
@@ -36,7 +38,14 @@ def gated_update(f: NavFilter, z: np.ndarray, h: np.ndarray, H: np.ndarray, R: n
     if not np.isfinite(d2) or d2 > gate:
         return False
     x0, P0 = f.x.copy(), f.P.copy()
-    f.ekf.update(z, lambda _x: H, lambda _x: h, R=R)
+    if frozen is None:
+        f.ekf.update(z, lambda _x: H, lambda _x: h, R=R)
+    else:
+        K = f.P @ H.T @ np.linalg.inv(S)
+        K[frozen] = 0.0
+        I_KH = np.eye(DIM) - K @ H
+        f.ekf.x = f.x + K @ y
+        f.ekf.P = I_KH @ f.P @ I_KH.T + K @ R @ K.T
     f.ekf.P = 0.5 * (f.ekf.P + f.ekf.P.T)
     if not (np.all(np.isfinite(f.ekf.x)) and np.all(np.isfinite(f.ekf.P))):
         f.ekf.x, f.ekf.P = x0, P0
@@ -51,21 +60,28 @@ def fold_alignment(f: NavFilter) -> None:
 
 
 def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarray,
-              inflation: float) -> bool:
-    """The tracker's camera position (its world frame and units), covariance `cov_w`."""
+              inflation: float, scale_from_motion: bool = True) -> bool:
+    """The tracker's camera position (its world frame and units), covariance `cov_w`.
+
+    The measurement is rotated into N axes (still tracker units). Without an IMU,
+    `scale_from_motion` is False: horizontal motion says nothing about the scale then (only a
+    constant-velocity guess would), so the horizontal rows do not update the scale (a Schmidt
+    "consider" update: the scale's uncertainty still counts in their innovation)."""
     x = f.x
     s_inv = float(np.exp(-x[LOG_SCALE]))
-    R_w_n = f.R_nom.T
     u = x[POS] + R_n_b @ f.lever - x[ANCHOR]
-    h = f.p_w0 + s_inv * (R_w_n @ u)
+    h = s_inv * u
     H = np.zeros((3, DIM))
-    H[:, POS] = s_inv * R_w_n
-    H[:, ANCHOR] = -s_inv * R_w_n
-    H[:, LOG_SCALE] = -h + f.p_w0
-    H[:, THETA] = s_inv * R_w_n @ skew(u)
+    H[:, POS] = s_inv * np.eye(3)
+    H[:, ANCHOR] = -s_inv * np.eye(3)
+    H[:, LOG_SCALE] = -h
+    H[:, THETA] = s_inv * skew(u)
     floor = (f.cfg.vo_position_std_m * s_inv) ** 2
-    R = inflation * (cov_w + floor * np.eye(3))
-    ok = gated_update(f, np.asarray(p_w, float), h, H, R, f.cfg.gate_chi2_3dof)
+    R = inflation * (f.R_nom @ cov_w @ f.R_nom.T + floor * np.eye(3))
+    vertical = abs(u[2]) >= 1.0
+    frozen = None if scale_from_motion else (LOG_SCALE, slice(0, 2 if vertical else 3))
+    z = f.R_nom @ (np.asarray(p_w, float) - f.p_w0)
+    ok = gated_update(f, z, h, H, R, f.cfg.gate_chi2_3dof, frozen)
     fold_alignment(f)
     f.rejections["vo"] = 0 if ok else f.rejections["vo"] + 1
     return ok

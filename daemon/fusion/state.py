@@ -123,8 +123,11 @@ class NavFilter:
     def start_segment(self, p_w: np.ndarray, R_w_b: np.ndarray, R_n_b: np.ndarray,
                       log_scale: float) -> None:
         """A new map: clone the camera position as the anchor, fresh scale and alignment."""
-        self.reanchor(p_w, R_n_b, np.zeros((3, 3)))
         x, P = self.ekf.x, self.ekf.P
+        x[ANCHOR] = x[POS] + R_n_b @ self.lever
+        P[ANCHOR, :] = P[POS, :]
+        P[:, ANCHOR] = P[:, POS]
+        P[ANCHOR, ANCHOR] = P[POS, POS]
         x[LOG_SCALE] = log_scale
         x[THETA] = 0.0
         for index, std in ((LOG_SCALE, self.cfg.scale_prior_std),
@@ -137,15 +140,23 @@ class NavFilter:
             else:
                 P[index, index] = std**2
         self.R_nom = R_n_b @ R_w_b.T
+        self.p_w0 = np.asarray(p_w, float).copy()
 
-    def reanchor(self, p_w: np.ndarray, R_n_b: np.ndarray, cov_n: np.ndarray) -> None:
-        """Make the current camera position (tracker position p_w, its noise cov_n in metres
-        and N) the anchor: from here on only the map's drift since now matters."""
+    def reanchor(self, p_w: np.ndarray, cov_n: np.ndarray) -> None:
+        """Move the anchor to where the map puts the camera now (tracker position p_w, its
+        noise cov_n in metres and N), so only the map's drift from here on matters. The map's
+        own chain is followed, not the filtered position, so no filter lag is frozen in."""
         x, P = self.ekf.x, self.ekf.P
-        x[ANCHOR] = x[POS] + R_n_b @ self.lever
-        P[ANCHOR, :] = P[POS, :]
-        P[:, ANCHOR] = P[:, POS]
-        P[ANCHOR, ANCHOR] = P[POS, POS] + cov_n
+        v = self.scale * (self.R_nom @ (np.asarray(p_w, float) - self.p_w0))
+        J = np.zeros((3, DIM))
+        J[:, ANCHOR] = np.eye(3)
+        J[:, LOG_SCALE] = v
+        J[:, THETA] = -skew(v)
+        JP = J @ P
+        P[ANCHOR, :] = JP
+        P[:, ANCHOR] = JP.T
+        P[ANCHOR, ANCHOR] = JP @ J.T + cov_n
+        x[ANCHOR] = x[ANCHOR] + v
         self.p_w0 = np.asarray(p_w, float).copy()
 
     def reference(self, which: str, value: float, std: float) -> None:
