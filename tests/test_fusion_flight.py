@@ -106,6 +106,12 @@ def test_sensor_variants(truth: fh.Truth, name: str) -> None:
     assert score.first_published_s - TAKEOFF_START_S <= 5.0
 
 
+def test_imu_missing_in_a_long_flight_without_map_reset(truth: fh.Truth) -> None:
+    score, *_ = fly(truth, fh.SENSOR_VARIANTS["no-imu"], fh.TrackerOptions(weak=((20.0, 24.0),)))
+    assert score.position_pct <= 3.0 and score.heading_rms_deg <= 2.0
+    assert score.published > 2000
+
+
 def test_custom_camera_mounting() -> None:
     mounting = MountingConfig(preset="custom", pitch_deg=-20.0, yaw_deg=5.0)
     score, *_ = fly(fh.survey_flight(legs=2), fh.SensorOptions(), mounting=mounting)
