@@ -51,8 +51,9 @@ class FusionConfig:
     accel_bias_std: float = 0.2  # m/s^2 initial
     accel_bias_walk: float = 0.01  # m/s^2 per sqrt(s)
     imu_timeout_s: float = 0.1
-    # without IMU: constant velocity with this acceleration noise
-    motion_accel_std: float = 2.0  # m/s^2
+    # without IMU: constant velocity with this white acceleration noise (m/s^2/sqrt(Hz)); the
+    # tracker corrects manoeuvres at frame rate, a small value keeps its map from wandering
+    motion_accel_std: float = 0.5
     # downward rangefinder (DISTANCE_SENSOR, orientation PITCH_270)
     use_rangefinder: bool = True
     range_std_m: float = 0.05

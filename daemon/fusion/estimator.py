@@ -128,6 +128,7 @@ class FusionEstimator:
             return None
         if not self.gate.update(f, t_capture):
             return None
+        f.published = True
         att = self.attitude.at(t_capture)
         return build_estimate(
             f, self.cfg, R_w_b=frame.R_w_b, rot_cov_w=frame.rot_cov,
@@ -233,9 +234,10 @@ class FusionEstimator:
             if np.linalg.norm(f.x[POS] - f.x[ANCHOR]) > self.cfg.reanchor_distance_m:
                 f.reanchor(frame.p_w, self._vo_noise_n(f, frame))
         elif f.rejections["vo"] >= self.cfg.reset_after_rejections and att is not None:
+            if f.published:
+                f.realigns += 1  # the autopilot saw this map: reset_counter must change
             f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, f.x[LOG_SCALE])
             f.rejections["vo"] = 0
-            f.realigns += 1
 
     def _vo_noise_n(self, f: NavFilter, frame: FrameInput) -> np.ndarray:
         """The tracker's position noise in metres and N."""
