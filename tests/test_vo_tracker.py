@@ -90,16 +90,35 @@ def test_bad_input_is_an_input_error():
     assert r.quality == "initializing" and not r.has_pose
 
 
-def test_lost_tracking_restarts_a_new_segment(synthetic):
+@pytest.mark.parametrize("threaded", [False, True])
+def test_lost_tracking_restarts_a_new_segment(synthetic, threaded):
     cam, frames, _ = synthetic
-    tracker = Tracker(cam)
-    results = [tracker.process(img, t) for t, img in frames[:40]]
-    assert results[-1].has_pose
-    blank = np.full((cam.height, cam.width), 90, np.uint8)
-    qualities = [tracker.process(blank, 2.0 + k).quality for k in range(4)]
-    assert "lost" in qualities
-    later = [tracker.process(img, 10.0 + t) for t, img in frames[40:]]
-    assert sum(r.new_segment for r in later) == 1
+    tracker = Tracker(cam, threaded=threaded)
+    try:
+        results = [tracker.process(img, t) for t, img in frames[:40]]
+        assert results[-1].has_pose
+        blank = np.full((cam.height, cam.width), 90, np.uint8)
+        qualities = [tracker.process(blank, 2.0 + k).quality for k in range(4)]
+        assert "lost" in qualities
+        later = [tracker.process(img, 10.0 + t) for t, img in frames[40:]]
+        assert sum(r.new_segment for r in later) == 1
+    finally:
+        tracker.close()
+
+
+def test_a_failing_mapping_thread_is_reported(synthetic, monkeypatch):
+    cam, frames, _ = synthetic
+    tracker = Tracker(cam, threaded=True)
+
+    def broken(*_):
+        raise ValueError("boom")
+
+    monkeypatch.setattr(tracker.mapper, "step", broken)
+    with pytest.raises(RuntimeError, match="mapping thread") as info:
+        for t, img in frames:
+            tracker.process(img, t)
+    assert isinstance(info.value.__cause__, ValueError)
+    tracker.close()
 
 
 def test_vamr_first_frames(data_dir):

@@ -41,6 +41,7 @@ class Tracker:
         self.config = config or TrackerConfig()
         self.threaded = threaded
         self.dropped_mapping_frames = 0
+        self._mapping_error: Exception | None = None
         self._frame_id = 0
         self._queue: queue.Queue | None = None
         self._thread: threading.Thread | None = None
@@ -82,7 +83,12 @@ class Tracker:
             item = self._queue.get()
             if item is None:
                 return
-            self.mapper.step(*item)
+            if self._mapping_error is not None:
+                continue  # keep draining so the tracking thread never blocks on the queue
+            try:
+                self.mapper.step(*item)
+            except Exception as exc:  # re-raised in the tracking thread by process()
+                self._mapping_error = exc
 
     def _map_step(self, frame: Frame, keyframe: bool) -> None:
         if not self.threaded:
@@ -106,6 +112,8 @@ class Tracker:
         if image.shape != (self.camera.height, self.camera.width):
             raise InputError(f"image is {image.shape[1]}x{image.shape[0]}, camera is "
                              f"{self.camera.width}x{self.camera.height}")
+        if self._mapping_error is not None:
+            raise RuntimeError("the mapping thread failed") from self._mapping_error
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
         frame = Frame(self._frame_id, float(t), image, self.camera, self.config.pyramid_levels)
@@ -117,6 +125,8 @@ class Tracker:
             with self.map.lock:
                 result, keyframe = self._track(frame, timings)
         timings["track"] = _ms(t0)
+        if result.quality == "lost":
+            self._on_lost()  # outside the map lock: a reset joins the mapping thread
         if result.has_pose and not result.new_segment:
             t1 = time.perf_counter()
             self._map_step(frame, keyframe)
@@ -203,7 +213,6 @@ class Tracker:
                              n_inliers=int(inlier.sum()))
         if quality == "bad":
             if self.lost.update(quality):
-                self._on_lost()
                 result.quality = "lost"
             return result, False
         self.lost.update(quality)
