@@ -6,16 +6,17 @@ from __future__ import annotations
 import math
 import multiprocessing
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from calib.errors import InputError
-from daemon.config import Config, MountingConfig
+from daemon.config import Config, MountingConfig, replace
 from sim.replay.autopilot_process import ReplayVehicle, VisionMessage
 from sim.replay.flight import sensor_streams, vehicle_trajectory
-from sim.replay.harness import ReplayRun, run_replay
+from sim.replay.harness import ReplayRun, choose_estimator, run_replay
 from sim.replay.report import KEYS, build_report, received_poses, start_aligned, velocity_at
 from sim.trajectory import Trajectory
 
@@ -113,14 +114,15 @@ def test_report_keys_are_the_documented_ones(tmp_path):
     assert aligned is not None and (tmp_path / "received.txt").is_file()
 
 
-def test_fusion_needs_realtime():
-    from dataclasses import dataclass
-
-    @dataclass(frozen=True)
-    class Fusion:
-        enabled: bool = True
-
-    config = Config()
-    object.__setattr__(config, "fusion", Fusion())
+def test_fusion_only_for_sequences_that_know_down_and_only_in_realtime():
+    handheld = SimpleNamespace(extras={})
+    synthetic = SimpleNamespace(extras={"T_ned_world": np.eye(4)})
+    fusion_on = replace(Config(), fusion={"enabled": True})
+    assert not choose_estimator(fusion_on, handheld, "auto").fusion.enabled
+    assert choose_estimator(fusion_on, synthetic, "auto").fusion.enabled
+    fusion_off = replace(Config(), fusion={"enabled": False})
+    assert not choose_estimator(fusion_off, synthetic, "auto").fusion.enabled
+    assert choose_estimator(Config(), handheld, "fusion").fusion.enabled
+    assert not choose_estimator(Config(), synthetic, "pass-through").fusion.enabled
     with pytest.raises(InputError, match="realtime"):
-        run_replay(object(), config, realtime=False)
+        run_replay(handheld, choose_estimator(Config(), handheld, "fusion"), realtime=False)

@@ -22,6 +22,10 @@ from sim.autopilot.vehicle import Vehicle
 from sim.trajectory import Trajectory
 
 MAX_LEAD_S = 0.1
+# sensor ranges of a flight controller's IMU (16 g, ~1700 deg/s); SCALED_IMU's int16 mG/mrad
+# fields overflow beyond 32 g and 32 rad/s
+ACCEL_LIMIT = 16 * 9.80665
+GYRO_LIMIT = 30.0
 PAD_S = 1.0  # the trajectory is held this long at both ends, so its derivatives stay defined
 VISION = ("ODOMETRY", "VISION_POSITION_ESTIMATE", "VISION_SPEED_ESTIMATE")
 
@@ -62,8 +66,12 @@ class ReplayVehicle:
         return min(max(t, self.t_first), self.t_last)
 
     def state(self, _uptime: float) -> dict:
-        """Vehicle.state at the current sequence time (the uptime argument is ignored)."""
-        return self.inner.state(self.sequence_time() - self.inner.t0)
+        """Vehicle.state at the current sequence time (the uptime argument is ignored), with
+        the IMU readings saturated like a real sensor's."""
+        state = self.inner.state(self.sequence_time() - self.inner.t0)
+        state["specific_force"] = np.clip(state["specific_force"], -ACCEL_LIMIT, ACCEL_LIMIT)
+        state["rates"] = np.clip(state["rates"], -GYRO_LIMIT, GYRO_LIMIT)
+        return state
 
 
 def _serve(conn: multiprocessing.connection.Connection, options: SimOptions,

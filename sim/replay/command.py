@@ -15,7 +15,7 @@ from pathlib import Path
 from calib.errors import InputError
 from daemon.config import Config, load_config
 from daemon.run_command import setup_logging
-from sim.replay.harness import fusion_enabled, replayed_flight, run_replay
+from sim.replay.harness import choose_estimator, replayed_flight, run_replay
 from sim.replay.report import build_report, format_report
 
 DEFAULT_PRESET = "survey-down"
@@ -29,10 +29,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument("--realtime", dest="realtime", action="store_const", const=True,
                       help="play frames at their timestamps; tracking that falls behind drops "
-                           "frames (default with fusion on)")
+                           "frames (default with fusion)")
     mode.add_argument("--fast", dest="realtime", action="store_const", const=False,
                       help="play frames as fast as tracking takes them, none dropped "
-                           "(default with fusion off)")
+                           "(default with pass-through; not with fusion)")
+    parser.add_argument("--estimator", choices=("auto", "fusion", "pass-through"),
+                        default="auto",
+                        help="auto (default): the config's [fusion] choice for sequences that "
+                             "know where down is (synthetic flights), pass-through for "
+                             "hand-held datasets")
     parser.add_argument("--config", type=Path, default=None,
                         help="service config (TOML, as for sdvl run); its link and camera "
                              "source are replaced by the replay's")
@@ -60,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
     config = load_config(args.config) if args.config else Config()
     setup_logging(args.log_level)
     sequence = resolve_sequence(args.sequence)
-    realtime = fusion_enabled(config) if args.realtime is None else args.realtime
+    config = choose_estimator(config, sequence, args.estimator)
+    realtime = config.fusion.enabled if args.realtime is None else args.realtime
     replay = run_replay(sequence, config, realtime, args.max_frames, progress=not args.quiet)
     out_dir = args.out or Path("sdvl-replay") / sequence.name
     report, aligned = build_report(replay, out_dir)

@@ -9,6 +9,8 @@ recorded by hand have no gravity reference; the scores use a Sim(3) alignment th
 from __future__ import annotations
 
 import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.spatial.transform import Slerp
 
 from daemon.config import MountingConfig
 from daemon.mounting import body_from_camera
@@ -16,6 +18,7 @@ from sim.autopilot.simulator import DEFAULT_STREAMS
 from sim.trajectory import Trajectory
 
 RANGEFINDER_M = (0.2, 40.0)  # DISTANCE_SENSOR min and max distance the simulator encodes
+RESAMPLE_HZ = 200.0
 
 
 def vehicle_trajectory(groundtruth: Trajectory, mounting: MountingConfig,
@@ -25,6 +28,19 @@ def vehicle_trajectory(groundtruth: Trajectory, mounting: MountingConfig,
     T_c_b = np.eye(4)
     T_c_b[:3, :3] = body_from_camera(mounting).T
     return Trajectory.from_matrices(groundtruth.t, T_ned_w @ groundtruth.matrices() @ T_c_b)
+
+
+def resampled(flight: Trajectory, rate_hz: float = RESAMPLE_HZ) -> Trajectory:
+    """The flight on a dense grid through a cubic spline, so the simulator's finite-difference
+    accelerations (linear interpolation between samples) are smooth even for ground truth
+    sampled at the frame rate."""
+    if len(flight) < 4:
+        return flight
+    t = np.arange(flight.t[0], flight.t[-1], 1.0 / rate_hz)
+    positions = CubicSpline(flight.t, flight.positions, axis=0)(t)
+    quaternions = Slerp(flight.t, flight.rotations)(t).as_quat()
+    return Trajectory(np.append(t, flight.t[-1]), np.vstack([positions, flight.positions[-1:]]),
+                      np.vstack([quaternions, flight.quaternions[-1:]]))
 
 
 def sensor_streams(flavour: str, flight: Trajectory | None) -> dict[str, float]:

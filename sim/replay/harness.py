@@ -19,12 +19,11 @@ import numpy as np
 from calib.errors import InputError
 from daemon.camera import SequenceSource
 from daemon.config import Config, replace
-from daemon.estimate import Estimator
 from daemon.run_command import camera_model, tracker_factory
 from daemon.service import Service
 from sim.autopilot import SimOptions
 from sim.replay.autopilot_process import AutopilotProcess, VisionMessage
-from sim.replay.flight import sensor_streams, vehicle_trajectory
+from sim.replay.flight import resampled, sensor_streams, vehicle_trajectory
 from sim.replay.recording import Recorder
 from sim.trajectory import Trajectory
 
@@ -117,19 +116,22 @@ def replayed_flight(run: ReplayRun) -> Trajectory | None:
     return run.flight.subset(inside) if inside.sum() >= 2 else run.flight
 
 
-def fusion_enabled(config: Config) -> bool:
-    """Whether the service config turns the fusion EKF on (a `[fusion]` table)."""
-    fusion = getattr(config, "fusion", None)
-    return bool(fusion is not None and fusion.enabled)
+def has_gravity_reference(sequence: object) -> bool:
+    """Whether the sequence says where NED is (`extras["T_ned_world"]`, synthetic flights do);
+    a hand-held dataset's world has no known down, so fusing it with the simulated autopilot's
+    sensors would score the made-up sensors rather than the service."""
+    return "T_ned_world" in getattr(sequence, "extras", {})
 
 
-def make_estimator(config: Config) -> Estimator | None:
-    """The estimator `sdvl run` would use: the fusion EKF when enabled, else pass-through."""
-    if not fusion_enabled(config):
-        return None
-    from daemon.fusion.estimator import FusionEstimator
-
-    return FusionEstimator(config.fusion, config.mounting, config.mavlink)
+def choose_estimator(config: Config, sequence: object, estimator: str) -> Config:
+    """The config with `[fusion] enabled` set for `estimator`: 'fusion', 'pass-through', or
+    'auto' (the config's choice where the sequence has a gravity reference, else
+    pass-through)."""
+    if estimator == "auto":
+        fusion = config.fusion.enabled and has_gravity_reference(sequence)
+    else:
+        fusion = estimator == "fusion"
+    return replace(config, fusion={"enabled": fusion})
 
 
 def warm_up(make_tracker: Callable, sequence: FirstFrames) -> float:
@@ -192,8 +194,9 @@ async def _serve(service: Service, source: ReplaySource, recorder: Recorder,
 
 def run_replay(sequence: object, config: Config, realtime: bool,
                max_frames: int | None = None, progress: bool = True) -> ReplayRun:
-    """Play `sequence` through the service against the simulated autopilot."""
-    fusion = fusion_enabled(config)
+    """Play `sequence` through the service (its estimator as `config.fusion.enabled` says)
+    against the simulated autopilot."""
+    fusion = config.fusion.enabled
     if fusion and not realtime:
         raise InputError("fusion needs --realtime: the autopilot's IMU runs on the wall clock")
     frames = FirstFrames(sequence, max_frames)
@@ -201,7 +204,7 @@ def run_replay(sequence: object, config: Config, realtime: bool,
                                  sequence.extras.get("T_ned_world"))
               if sequence.groundtruth is not None else None)
     options = SimOptions(streams=sensor_streams("ardupilot", flight))
-    autopilot = AutopilotProcess(options, flight)
+    autopilot = AutopilotProcess(options, None if flight is None else resampled(flight))
     received: list[VisionMessage] = []
     try:
         config = replace(config, mavlink={"link": autopilot.url},
@@ -211,8 +214,7 @@ def run_replay(sequence: object, config: Config, realtime: bool,
         make_tracker = tracker_factory(config, camera_model(config.camera, source))
         warmup_s = warm_up(make_tracker, frames)
         recorder = Recorder()
-        service = Service(config, source, make_tracker, make_estimator(config),
-                          on_tracked=recorder)
+        service = Service(config, source, make_tracker, on_tracked=recorder)
         cpu0, wall0 = time.process_time(), time.perf_counter()
         code = asyncio.run(_serve(service, source, recorder, Progress(len(frames), progress)))
         wall_s, cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0
