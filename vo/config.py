@@ -50,6 +50,8 @@ class TrackerConfig:
     kf_min_frames: int = 30
     kf_points_ratio: float = 0.9
     lost_points_ratio: float = 0.3
+    # also a keyframe (after kf_min_frames) while fewer points than this are seen
+    kf_min_points: int = 50
     # count the points seen as the frame's inlier matches (else: map points projecting inside)
     kf_count_inliers: bool = False
     max_keyframes: int = 30

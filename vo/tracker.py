@@ -244,8 +244,10 @@ class Tracker:
         cfg = self.config
         if n_seen < (1.0 - cfg.lost_points_ratio) * self.kf_visible:
             return True
-        return (self.frames_since_kf >= cfg.kf_min_frames
-                and n_seen < cfg.kf_points_ratio * self.kf_visible)
+        # the thesis policy is relative to the last keyframe; a floor keeps a sparse map
+        # (a keyframe taken where little was visible) from never growing again
+        return self.frames_since_kf >= cfg.kf_min_frames and (
+            n_seen < cfg.kf_points_ratio * self.kf_visible or n_seen < cfg.kf_min_points)
 
     def _on_lost(self) -> None:
         """Lost after consecutive bad frames: the seam for relocalisation (6.9); for now a new
