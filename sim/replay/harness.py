@@ -159,11 +159,17 @@ class Progress:
         self.total, self.enabled = max(total, 1), enabled
         self.tty = sys.stderr.isatty()
         self._last_decile = -1
-        self._start = time.monotonic()
+        self._start: float | None = None
+
+    def note(self, text: str) -> None:
+        """One line of its own."""
+        if self.enabled:
+            print(text, file=sys.stderr, flush=True)
 
     def update(self, offered: int, processed: int, tracked: int) -> None:
         if not self.enabled:
             return
+        self._start = self._start or time.monotonic()
         fraction = min(offered / self.total, 1.0)
         if not self.tty:
             decile = int(fraction * 10)
@@ -212,11 +218,14 @@ def run_replay(sequence: object, config: Config, realtime: bool,
         source = ReplaySource(frames, realtime, 1.0 / config.mavlink.max_rate_hz,
                               autopilot.frame_released)
         make_tracker = tracker_factory(config, camera_model(config.camera, source))
+        show = Progress(len(frames), progress)
+        show.note(f"replay {sequence.name}: warming up the tracker (the first run after an "
+                  "install compiles its kernels: about a minute)")
         warmup_s = warm_up(make_tracker, frames)
         recorder = Recorder()
         service = Service(config, source, make_tracker, on_tracked=recorder)
         cpu0, wall0 = time.process_time(), time.perf_counter()
-        code = asyncio.run(_serve(service, source, recorder, Progress(len(frames), progress)))
+        code = asyncio.run(_serve(service, source, recorder, show))
         wall_s, cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0
         time.sleep(SETTLE_S)
     finally:
