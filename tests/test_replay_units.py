@@ -85,6 +85,22 @@ def test_received_messages_are_placed_at_their_frames_sequence_time():
     np.testing.assert_allclose(got.t_arrival - got.t_capture, 0.005, atol=1e-6)
 
 
+def test_vision_position_estimates_take_their_velocity_from_vision_speed():
+    rows = [row(50.0, 1.0), row(50.1, 1.1)]
+    messages = []
+    for r in rows:
+        usec = round(r["t_capture"] * 1e6)
+        messages.append(VisionMessage("VISION_POSITION_ESTIMATE", r["t_capture"], {
+            "usec": usec, "x": 1.0, "y": 2.0, "z": 3.0, "roll": 0.0, "pitch": 0.0,
+            "yaw": 0.5 * math.pi, "reset_counter": 0}))
+        messages.append(VisionMessage("VISION_SPEED_ESTIMATE", r["t_capture"], {
+            "usec": usec, "x": 0.5, "y": 0.0, "z": 0.0, "reset_counter": 0}))
+    got = received_poses(messages, rows)
+    np.testing.assert_allclose(got.trajectory.t, [1.0, 1.1])
+    np.testing.assert_allclose(got.velocity_local, [[0.5, 0.0, 0.0]] * 2)
+    np.testing.assert_allclose(got.trajectory.rotations.as_euler("ZYX")[:, 0], 0.5 * math.pi)
+
+
 def test_start_alignment_translates_the_flight_onto_the_first_pose():
     flight = line_flight()
     estimate = Trajectory([2.0, 3.0], [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]],

@@ -31,7 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help="play frames at their timestamps; tracking that falls behind drops "
                            "frames (default with fusion)")
     mode.add_argument("--fast", dest="realtime", action="store_const", const=False,
-                      help="play frames as fast as tracking takes them, none dropped "
+                      help="play frames as fast as tracking takes them (at most at "
+                           "mavlink.max_rate_hz, so every estimate is sent), none dropped "
                            "(default with pass-through; not with fusion)")
     parser.add_argument("--estimator", choices=("auto", "fusion", "pass-through"),
                         default="auto",
