@@ -15,9 +15,10 @@ from scipy.spatial.transform import Rotation
 from calib.errors import InputError
 from daemon.config import Config, MountingConfig, replace
 from sim.replay.autopilot_process import ReplayVehicle, VisionMessage
-from sim.replay.flight import sensor_streams, vehicle_trajectory
+from sim.replay.flight import body_imu, sensor_streams, vehicle_trajectory
 from sim.replay.harness import ReplayRun, choose_estimator, run_replay
 from sim.replay.report import KEYS, build_report, received_poses, start_aligned, velocity_at
+from sim.sequence import ImuSamples
 from sim.trajectory import Trajectory
 
 
@@ -54,6 +55,18 @@ def test_vehicle_holds_the_start_then_follows_the_frames():
     np.testing.assert_allclose(state["velocity"], [1.0, 0.0, 0.0], atol=1e-6)
     clock[0], clock[1] = now - 99.0, 99.0  # beyond the end: hold the last pose
     np.testing.assert_allclose(vehicle.state(0.0)["position"], [10.0, 0.0, -2.0], atol=1e-9)
+
+
+def test_recorded_body_imu_replaces_the_derived_one():
+    clock = multiprocessing.Array("d", [time.monotonic() - 2.0, 2.0])  # at t = 2 s
+    imu = ImuSamples(np.array([0.0, 10.0]), np.array([[0.0, 0.0, -9.0], [0.0, 0.0, -11.0]]),
+                     np.array([[0.1, 0.0, 0.0], [0.3, 0.0, 0.0]]))
+    state = ReplayVehicle(line_flight(), clock, imu).state(0.0)
+    np.testing.assert_allclose(state["specific_force"], [0.0, 0.0, -9.4], atol=0.03)
+    np.testing.assert_allclose(state["rates"], [0.14, 0.0, 0.0], atol=0.003)
+    sequence = SimpleNamespace(imu=imu, extras={"imu_frame": "body_frd"})
+    assert body_imu(sequence) is imu
+    assert body_imu(SimpleNamespace(imu=imu, extras={})) is None
 
 
 def odometry(t_capture: float, position, reset: int = 0, v_body=(0.0, 0.0, 0.0),

@@ -19,6 +19,7 @@ import numpy as np
 
 from sim.autopilot import SimAutopilot, SimOptions
 from sim.autopilot.vehicle import Vehicle
+from sim.sequence import ImuSamples
 from sim.trajectory import Trajectory
 
 MAX_LEAD_S = 0.1
@@ -50,12 +51,15 @@ def padded(trajectory: Trajectory) -> Trajectory:
 
 
 class ReplayVehicle:
-    """A Vehicle whose time is the replay's sequence time instead of the autopilot's uptime."""
+    """A Vehicle whose time is the replay's sequence time instead of the autopilot's uptime;
+    with `imu` (recorded body-FRD samples) the IMU readings are the recorded ones."""
 
-    def __init__(self, trajectory: Trajectory, clock: multiprocessing.Array):
+    def __init__(self, trajectory: Trajectory, clock: multiprocessing.Array,
+                 imu: ImuSamples | None = None):
         self.inner = Vehicle(padded(trajectory))
         self.t_first, self.t_last = float(trajectory.t[0]), float(trajectory.t[-1])
         self.clock = clock
+        self.imu = imu
 
     def sequence_time(self) -> float:
         """Where in the sequence the vehicle is now."""
@@ -68,18 +72,28 @@ class ReplayVehicle:
     def state(self, _uptime: float) -> dict:
         """Vehicle.state at the current sequence time (the uptime argument is ignored), with
         the IMU readings saturated like a real sensor's."""
-        state = self.inner.state(self.sequence_time() - self.inner.t0)
+        t = self.sequence_time()
+        state = self.inner.state(t - self.inner.t0)
+        if self.imu is not None:
+            state["specific_force"] = _interp_rows(t, self.imu.t, self.imu.accel)
+            if self.imu.gyro is not None:
+                state["rates"] = _interp_rows(t, self.imu.t, self.imu.gyro)
         state["specific_force"] = np.clip(state["specific_force"], -ACCEL_LIMIT, ACCEL_LIMIT)
         state["rates"] = np.clip(state["rates"], -GYRO_LIMIT, GYRO_LIMIT)
         return state
 
 
+def _interp_rows(t: float, times: np.ndarray, values: np.ndarray) -> np.ndarray:
+    return np.array([np.interp(t, times, values[:, i]) for i in range(values.shape[1])])
+
+
 def _serve(conn: multiprocessing.connection.Connection, options: SimOptions,
-           trajectory: Trajectory | None, clock: multiprocessing.Array) -> None:
+           trajectory: Trajectory | None, imu: ImuSamples | None,
+           clock: multiprocessing.Array) -> None:
     """The child: sends the autopilot's URL, then on request the vision messages received."""
     sim = SimAutopilot(options)
     if trajectory is not None:
-        sim.vehicle = ReplayVehicle(trajectory, clock)
+        sim.vehicle = ReplayVehicle(trajectory, clock, imu)
     with sim:
         conn.send(sim.url)
         conn.recv()
@@ -91,11 +105,11 @@ class AutopilotProcess:
     """Start it, connect the service to `url`, call `finish()` for what it received."""
 
     def __init__(self, options: SimOptions | None = None,
-                 trajectory: Trajectory | None = None):
+                 trajectory: Trajectory | None = None, imu: ImuSamples | None = None):
         self.clock = multiprocessing.Array("d", [math.nan, math.nan])
         self._conn, child = multiprocessing.Pipe()
         self._process = multiprocessing.Process(
-            target=_serve, args=(child, options or SimOptions(), trajectory, self.clock),
+            target=_serve, args=(child, options or SimOptions(), trajectory, imu, self.clock),
             name="sim-autopilot", daemon=True)
         self._process.start()
         self.url: str = self._conn.recv()

@@ -4,6 +4,8 @@ camera ground truth, and the sensor streams that make sense for it.
 A sequence whose ground-truth world is not NED says how it relates in
 `extras["T_ned_world"]` (4x4); without it the ground-truth world is taken as NED (datasets
 recorded by hand have no gravity reference; the scores use a Sim(3) alignment then anyway).
+Recorded IMU samples are streamed instead of the ones derived from the ground truth when the
+sequence says they are in the body frame (`extras["imu_frame"] == "body_frd"`).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from scipy.spatial.transform import Slerp
 from daemon.config import MountingConfig
 from daemon.mounting import body_from_camera
 from sim.autopilot.simulator import DEFAULT_STREAMS
+from sim.sequence import ImuSamples
 from sim.trajectory import Trajectory
 
 RANGEFINDER_M = (0.2, 40.0)  # DISTANCE_SENSOR min and max distance the simulator encodes
@@ -41,6 +44,12 @@ def resampled(flight: Trajectory, rate_hz: float = RESAMPLE_HZ) -> Trajectory:
     quaternions = Slerp(flight.t, flight.rotations)(t).as_quat()
     return Trajectory(np.append(t, flight.t[-1]), np.vstack([positions, flight.positions[-1:]]),
                       np.vstack([quaternions, flight.quaternions[-1:]]))
+
+
+def body_imu(sequence: object) -> ImuSamples | None:
+    """The sequence's recorded IMU when it is in body FRD, else None (derive it)."""
+    imu = getattr(sequence, "imu", None)
+    return imu if imu is not None and sequence.extras.get("imu_frame") == "body_frd" else None
 
 
 def sensor_streams(flavour: str, flight: Trajectory | None) -> dict[str, float]:

@@ -23,7 +23,7 @@ from daemon.run_command import camera_model, tracker_factory
 from daemon.service import Service
 from sim.autopilot import SimOptions
 from sim.replay.autopilot_process import AutopilotProcess, VisionMessage
-from sim.replay.flight import resampled, sensor_streams, vehicle_trajectory
+from sim.replay.flight import body_imu, resampled, sensor_streams, vehicle_trajectory
 from sim.replay.recording import Recorder
 from sim.trajectory import Trajectory
 
@@ -210,7 +210,8 @@ def run_replay(sequence: object, config: Config, realtime: bool,
                                  sequence.extras.get("T_ned_world"))
               if sequence.groundtruth is not None else None)
     options = SimOptions(streams=sensor_streams("ardupilot", flight))
-    autopilot = AutopilotProcess(options, None if flight is None else resampled(flight))
+    autopilot = AutopilotProcess(options, None if flight is None else resampled(flight),
+                                 body_imu(sequence))
     received: list[VisionMessage] = []
     try:
         config = replace(config, mavlink={"link": autopilot.url},
