@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from calib.errors import InputError
+from daemon.fusion.config import FusionConfig
 
 EXAMPLE_CONFIG = Path(__file__).with_name("example_config.toml")
 MOUNTING_PRESETS = ("down", "forward", "custom")
@@ -93,6 +94,7 @@ class Config:
     mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
     origin: OriginConfig = field(default_factory=OriginConfig)
     service: ServiceConfig = field(default_factory=ServiceConfig)
+    fusion: FusionConfig = field(default_factory=FusionConfig)
     tracker: dict = field(default_factory=dict)
 
 

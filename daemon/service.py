@@ -73,7 +73,7 @@ class Service:
         self.cfg = config
         self.source = source
         self.make_tracker = make_tracker
-        self.estimator = estimator or PassThroughEstimator(config.mounting, config.mavlink)
+        self.estimator = estimator or self._default_estimator()
         self.notifier = notifier or Notifier()
         self.on_tracked = on_tracked
         self.stats = ServiceStats()
@@ -93,6 +93,16 @@ class Service:
         self._loop: asyncio.AbstractEventLoop | None = None
         self.capture: CaptureThread | None = None
         self.tracking: TrackingThread | None = None
+
+    def _default_estimator(self) -> Estimator:
+        """The EKF when [fusion] is enabled, else the pass-through."""
+        if not self.cfg.fusion.enabled:
+            return PassThroughEstimator(self.cfg.mounting, self.cfg.mavlink)
+        from daemon.fusion.estimator import FusionEstimator
+
+        return FusionEstimator(
+            self.cfg.fusion, self.cfg.mounting, self.cfg.mavlink,
+            report=lambda text: self._from_thread(self.texts.report, text, time.monotonic()))
 
     # --- lifecycle -------------------------------------------------------------------------
 

@@ -47,11 +47,12 @@ class FakeTracker:
 
 
 def service_config(link: str, **sections: dict) -> Config:
-    """A service config for tests: test pattern camera, the given link."""
+    """A service config for tests: test pattern camera, the given link, pass-through estimator
+    (the link is tested with a fake tracker; the EKF path has its own tests)."""
     base = replace(Config(), camera={"source": "testpattern", "width": 64, "height": 48},
                    mavlink={"link": link, "heartbeat_timeout_s": 0.6,
                             "statustext_interval_s": 0.2},
-                   mounting={"preset": "forward"})
+                   mounting={"preset": "forward"}, fusion={"enabled": False})
     return replace(base, **sections)
 
 
