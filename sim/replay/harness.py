@@ -199,9 +199,10 @@ async def _serve(service: Service, source: ReplaySource, recorder: Recorder,
 
 
 def run_replay(sequence: object, config: Config, realtime: bool,
-               max_frames: int | None = None, progress: bool = True) -> ReplayRun:
+               max_frames: int | None = None, progress: bool = True,
+               make_tracker: Callable | None = None) -> ReplayRun:
     """Play `sequence` through the service (its estimator as `config.fusion.enabled` says)
-    against the simulated autopilot."""
+    against the simulated autopilot; `make_tracker(frame)` replaces the SDVL tracker (tests)."""
     fusion = config.fusion.enabled
     if fusion and not realtime:
         raise InputError("fusion needs --realtime: the autopilot's IMU runs on the wall clock")
@@ -218,7 +219,8 @@ def run_replay(sequence: object, config: Config, realtime: bool,
                          camera={"source": "testpattern", "calibration": ""})
         source = ReplaySource(frames, realtime, 1.0 / config.mavlink.max_rate_hz,
                               autopilot.frame_released)
-        make_tracker = tracker_factory(config, camera_model(config.camera, source))
+        make_tracker = make_tracker or tracker_factory(config,
+                                                       camera_model(config.camera, source))
         show = Progress(len(frames), progress)
         show.note(f"replay {sequence.name}: warming up the tracker (the first run after an "
                   "install compiles its kernels: about a minute)")
