@@ -62,21 +62,26 @@ def _save(plt, fig, title: str, path: str | Path) -> None:
         plt.close(fig)
 
 
-def plot_replay(aligned: Aligned, flight: Trajectory, path: str | Path, title: str) -> None:
+def plot_replay(aligned: Aligned, flight: Trajectory, path: str | Path, title: str,
+                ned: bool = False) -> None:
     """A replay at a glance: top view of the flight and the received poses (aligned), height
-    over time (NED -z) and position error over time."""
+    over time (-z) and position error over time. `ned`: the world is NED, so the top view is
+    east/north; otherwise it spans the two axes the flight extends most along."""
     est = aligned.estimate
     t0 = flight.t[0]
-    a, b = top_view_axes(flight.positions)
-    names = "xyz"
+    if ned:
+        (a, b), labels = (1, 0), ("east [m]", "north [m]")
+    else:
+        a, b = top_view_axes(flight.positions)
+        labels = (f"{'xyz'[a]} [m]", f"{'xyz'[b]} [m]")
     plt, fig, (ax_top, ax_alt, ax_err) = _figure(1, 3, (16, 5))
     ax_top.plot(flight.positions[:, a], flight.positions[:, b], "k-", lw=1.5,
                 label="ground truth")
     ax_top.plot(est.positions[:, a], est.positions[:, b], "r.", ms=2,
                 label="received (aligned)")
     ax_top.plot(*flight.positions[0, [a, b]], "go", label="start")
-    ax_top.set_xlabel(f"{names[a]} [m]")
-    ax_top.set_ylabel(f"{names[b]} [m]")
+    ax_top.set_xlabel(labels[0])
+    ax_top.set_ylabel(labels[1])
     ax_top.set_aspect("equal", adjustable="datalim")
     ax_top.legend(loc="best", fontsize=9)
     ax_top.set_title("top view")

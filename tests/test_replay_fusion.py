@@ -66,13 +66,17 @@ def test_fusion_replay_scores_ned_positions_after_the_start_alignment(tmp_path, 
     config = replace(Config(), fusion={"enabled": True})
     run = run_replay(sequence, config, realtime=True, progress=False,
                      make_tracker=lambda frame: GroundTruthTracker(gt))
-    r, aligned = build_report(run, tmp_path)
+    r, aligned, reference = build_report(run, tmp_path)
     assert r["estimator"] == "fusion" and r["align"] == "start" and r["scale"] == 1.0
     assert r["dropped"] == 0 and r["tracked"] == len(gt) and r["resets"] == 0
     assert r["messages_received"] >= 150  # published once scale and heading converged
     assert r["ate_rmse_m"] < 0.05 and r["rot_rmse_deg"] < 1.0
     assert r["velocity_rmse_m_s"] < 0.1
     assert aligned is not None
+    from sim.plots import plot_replay
+
+    plot_replay(aligned, reference, tmp_path / "fusion.png", "fusion replay", ned=True)
+    assert (tmp_path / "fusion.png").stat().st_size > 20_000
 
     assert main(["eval", r["groundtruth_file"], r["received_file"], "--align", "none",
                  "--json"]) == 0

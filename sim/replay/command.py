@@ -15,7 +15,12 @@ from pathlib import Path
 from calib.errors import InputError
 from daemon.config import Config, load_config
 from daemon.run_command import setup_logging
-from sim.replay.harness import choose_estimator, replayed_flight, run_replay
+from sim.replay.harness import (
+    choose_estimator,
+    during_replay,
+    has_gravity_reference,
+    run_replay,
+)
 from sim.replay.report import build_report, format_report
 
 DEFAULT_PRESET = "survey-down"
@@ -70,14 +75,15 @@ def run(args: argparse.Namespace) -> int:
     realtime = config.fusion.enabled if args.realtime is None else args.realtime
     replay = run_replay(sequence, config, realtime, args.max_frames, progress=not args.quiet)
     out_dir = args.out or Path("sdvl-replay") / sequence.name
-    report, aligned = build_report(replay, out_dir)
+    report, aligned, reference = build_report(replay, out_dir)
     if args.plot is not None:
         if aligned is None:
             raise InputError("no plot: the sequence has no ground truth or too few poses "
                              "were received")
         from sim.plots import plot_replay
 
-        plot_replay(aligned, replayed_flight(replay), args.plot,
-                    f"sdvl replay {sequence.name}: {report['mode']}, {report['estimator']}")
+        plot_replay(aligned, during_replay(reference, replay), args.plot,
+                    f"sdvl replay {sequence.name}: {report['mode']}, {report['estimator']}",
+                    ned=has_gravity_reference(sequence))
     print(json.dumps(report) if args.json else format_report(report))
     return replay.exit_code

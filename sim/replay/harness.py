@@ -106,14 +106,13 @@ class ReplayRun:
     stats: dict = field(default_factory=dict)
 
 
-def replayed_flight(run: ReplayRun) -> Trajectory | None:
-    """The flight during the frames that were played (all of it with --max-frames too)."""
-    if run.flight is None or not run.rows:
-        return run.flight
+def during_replay(trajectory: Trajectory, run: ReplayRun) -> Trajectory:
+    """The part of a trajectory while frames were played (e.g. with --max-frames)."""
+    if not run.rows:
+        return trajectory
     times = [r["t_source"] for r in run.rows]
-    t = run.flight.t
-    inside = (t >= min(times)) & (t <= max(times))
-    return run.flight.subset(inside) if inside.sum() >= 2 else run.flight
+    inside = (trajectory.t >= min(times)) & (trajectory.t <= max(times))
+    return trajectory.subset(inside) if inside.sum() >= 2 else trajectory
 
 
 def has_gravity_reference(sequence: object) -> bool:

@@ -212,17 +212,19 @@ def accuracy(run: ReplayRun, received: Received,
     return out, aligned, groundtruth
 
 
-def build_report(run: ReplayRun, out_dir: Path | None) -> tuple[dict, Aligned | None]:
-    """The report dictionary (keys: KEYS) and the aligned trajectories for the plot."""
+def build_report(run: ReplayRun, out_dir: Path | None
+                 ) -> tuple[dict, Aligned | None, Trajectory | None]:
+    """The report dictionary (keys: KEYS), the aligned trajectories and the whole ground truth
+    they were scored against (in the received poses' frame for 'start'), for the plot."""
     received = received_poses(run.received, run.rows)
-    scores, aligned, _ = accuracy(run, received, out_dir)
+    scores, aligned, reference = accuracy(run, received, out_dir)
     report = {"sequence": run.name, "mode": "realtime" if run.realtime else "fast",
               "estimator": "fusion" if run.fusion else "pass-through",
               **frame_counts(run), "messages_received": len(received.t_arrival),
               "skipped_stale": run.stats.get("skipped_stale", 0),
               **scores, **timing(run, received), "resets": received.resets,
               "wall_s": run.wall_s, "warmup_s": run.warmup_s}
-    return {key: report[key] for key in KEYS}, aligned
+    return {key: report[key] for key in KEYS}, aligned, reference
 
 
 def _num(value: float | None, fmt: str) -> str:
