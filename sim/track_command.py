@@ -129,6 +129,7 @@ def build_report(sequence, n_frames: int, estimate: Trajectory | None, segment: 
         "segments": int(segment.max()) + 1 if len(segment) else 0,
         "longest_segment_poses": 0,
         "longest_segment_ate_rmse_m": None,
+        "longest_segment_rot_rmse_deg": None,
     }
     if sequence.groundtruth is not None and estimate is not None and len(estimate) >= 3:
         ev = evaluate(sequence.groundtruth, estimate, "sim3")
@@ -139,8 +140,9 @@ def build_report(sequence, n_frames: int, estimate: Trajectory | None, segment: 
         part = estimate.subset(segment == longest)
         report["longest_segment_poses"] = len(part)
         if sequence.groundtruth is not None and len(part) >= 3:
-            report["longest_segment_ate_rmse_m"] = evaluate(sequence.groundtruth, part,
-                                                            "sim3").ate_rmse_m
+            ev = evaluate(sequence.groundtruth, part, "sim3")
+            report["longest_segment_ate_rmse_m"] = ev.ate_rmse_m
+            report["longest_segment_rot_rmse_deg"] = ev.rot_rmse_deg
     return report
 
 
@@ -158,7 +160,8 @@ def format_report(r: dict) -> str:
         seg_ate = r["longest_segment_ate_rmse_m"]
         lines.append(f"segments   {r['segments']} (map re-initialised); longest "
                      f"{r['longest_segment_poses']} poses"
-                     + ("" if seg_ate is None else f", ATE RMSE {seg_ate:.4f} m"))
+                     + ("" if seg_ate is None else f", ATE RMSE {seg_ate:.4f} m, rotation "
+                        f"RMSE {r['longest_segment_rot_rmse_deg']:.2f} deg"))
     lines.append("qualities  " + ", ".join(f"{k} {v}" for k, v in r["qualities"].items()))
     lines.append("stage          median ms    p95 ms")
     for name, med in r["stages"].items():
