@@ -131,8 +131,7 @@ def test_report_keys_are_the_documented_ones(tmp_path):
                 for i, r in enumerate(rows)]
     messages = [VisionMessage(m.kind, m.t_arrival, {**m.fields, "q": [1.0, 0, 0, 0], "vx": 2.0})
                 for m in messages]  # twice the ground truth's scale, moving at 2 units/s
-    run = ReplayRun("line", False, False, 95, 95, 0, rows, messages, flight, 9.0, 1.0, 0.5,
-                    100.0, 0)
+    run = ReplayRun("line", False, False, 95, rows, messages, flight, 9.0, 1.0, 0.5, 100.0, 0)
     report, aligned, _ = build_report(run, tmp_path)
     assert list(report) == list(KEYS)
     assert report["frames"] == 95 and report["processed"] == 89 and report["dropped"] == 6

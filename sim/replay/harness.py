@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import asyncio
 import resource
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -24,11 +23,11 @@ from daemon.service import Service
 from sim.autopilot import SimOptions
 from sim.replay.autopilot_process import AutopilotProcess, VisionMessage
 from sim.replay.flight import body_imu, resampled, sensor_streams, vehicle_trajectory
+from sim.replay.progress import Progress
 from sim.replay.recording import Recorder
 from sim.trajectory import Trajectory
 
 WARMUP_FRAMES = 30  # enough for the map to start, so mapping kernels are loaded too
-PROGRESS_S = 0.25
 SETTLE_S = 0.3  # after the last frame, for the last messages to arrive
 RATE_MARGIN = 1.05  # fast replay: frames this much slower than the message rate limit
 
@@ -92,9 +91,7 @@ class ReplayRun:
     name: str
     realtime: bool
     fusion: bool
-    total_frames: int
     offered: int
-    dropped_by_capture: int
     rows: list[dict]  # Recorder rows, one per processed frame
     received: list[VisionMessage]
     flight: Trajectory | None  # vehicle ground truth (body FRD in NED)
@@ -151,48 +148,13 @@ def warm_up(make_tracker: Callable, sequence: FirstFrames) -> float:
     return time.perf_counter() - start
 
 
-class Progress:
-    """A one-line progress bar on stderr (a line per 10 % when stderr is not a terminal)."""
-
-    def __init__(self, total: int, enabled: bool):
-        self.total, self.enabled = max(total, 1), enabled
-        self.tty = sys.stderr.isatty()
-        self._last_decile = -1
-        self._start: float | None = None
-
-    def note(self, text: str) -> None:
-        """One line of its own."""
-        if self.enabled:
-            print(text, file=sys.stderr, flush=True)
-
-    def update(self, offered: int, processed: int, tracked: int) -> None:
-        if not self.enabled:
-            return
-        self._start = self._start or time.monotonic()
-        fraction = min(offered / self.total, 1.0)
-        if not self.tty:
-            decile = int(fraction * 10)
-            if decile == self._last_decile:
-                return
-            self._last_decile = decile
-        bar = "#" * int(fraction * 30)
-        line = (f"replay [{bar:<30}] {offered}/{self.total} frames, processed {processed}, "
-                f"tracked {tracked}, {time.monotonic() - self._start:.0f} s")
-        print(("\r" + line) if self.tty else line, end="" if self.tty else "\n",
-              file=sys.stderr, flush=True)
-
-    def close(self) -> None:
-        if self.enabled and self.tty:
-            print(file=sys.stderr, flush=True)
-
-
 async def _serve(service: Service, source: ReplaySource, recorder: Recorder,
                  progress: Progress) -> int:
     task = asyncio.create_task(service.run())
     while not task.done():
         rows = recorder.rows
         progress.update(source.offered, len(rows), sum(r["has_pose"] for r in rows))
-        await asyncio.wait({task}, timeout=PROGRESS_S)
+        await asyncio.wait({task}, timeout=progress.interval_s)
     progress.close()
     return task.result()
 
@@ -234,8 +196,7 @@ def run_replay(sequence: object, config: Config, realtime: bool,
         received = autopilot.finish()
     stats = service.stats
     return ReplayRun(
-        name=sequence.name, realtime=realtime, fusion=fusion, total_frames=len(frames),
-        offered=source.offered, dropped_by_capture=service.capture.slot.dropped,
+        name=sequence.name, realtime=realtime, fusion=fusion, offered=source.offered,
         rows=recorder.rows, received=received, flight=flight, wall_s=wall_s, cpu_s=cpu_s,
         warmup_s=warmup_s, peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         exit_code=code,
