@@ -74,52 +74,56 @@ def _pose_messages(received: list[VisionMessage]) -> list[VisionMessage]:
     return odometry or [m for m in received if m.kind == "VISION_POSITION_ESTIMATE"]
 
 
-def _pose(m: VisionMessage) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """position, quaternion xyzw, velocity in the local frame."""
+def _stamp(m: VisionMessage) -> float:
+    """The capture time a vision message carries, seconds."""
+    return (m.fields["time_usec"] if m.kind == "ODOMETRY" else m.fields["usec"]) / 1e6
+
+
+def _pose(m: VisionMessage, speeds: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """position, quaternion xyzw and velocity in the local frame (VISION_POSITION_ESTIMATE:
+    from the VISION_SPEED_ESTIMATE of the same frame, NaN without one)."""
     f = m.fields
     position = np.array([f["x"], f["y"], f["z"]])
     if m.kind == "ODOMETRY":
         w, x, y, z = f["q"]
         rot = Rotation.from_quat([x, y, z, w])
-        velocity = rot.apply([f["vx"], f["vy"], f["vz"]])
-    else:
-        rot = Rotation.from_euler("ZYX", [f["yaw"], f["pitch"], f["roll"]])
-        velocity = np.full(3, np.nan)
+        return position, rot.as_quat(), rot.apply([f["vx"], f["vy"], f["vz"]])
+    rot = Rotation.from_euler("ZYX", [f["yaw"], f["pitch"], f["roll"]])
+    speed = speeds.get(f["usec"])
+    velocity = np.full(3, np.nan) if speed is None else np.array([speed[k] for k in "xyz"])
     return position, rot.as_quat(), velocity
+
+
+def nearest(sorted_times: np.ndarray, times: np.ndarray, tolerance: float) -> np.ndarray:
+    """Index of the nearest of `sorted_times` for each of `times`, -1 when none is within
+    `tolerance`."""
+    if len(sorted_times) == 0:
+        return np.full(len(times), -1)
+    k = np.clip(np.searchsorted(sorted_times, times), 1, max(len(sorted_times) - 1, 1))
+    before = np.clip(k - 1, 0, len(sorted_times) - 1)
+    k = np.where(np.abs(sorted_times[before] - times) <= np.abs(sorted_times[k] - times),
+                 before, k) if len(sorted_times) > 1 else np.zeros(len(times), dtype=int)
+    return np.where(np.abs(sorted_times[k] - times) <= tolerance, k, -1)
 
 
 def received_poses(received: list[VisionMessage], rows: list[dict]) -> Received:
     """The pose messages in arrival order, each placed at its frame's sequence time (matched
-    through the capture time it carries)."""
-    messages = _pose_messages(received)
+    through the capture time it carries); messages that match no frame are left out."""
     speeds = {m.fields["usec"]: m.fields for m in received if m.kind == "VISION_SPEED_ESTIMATE"}
+    rows = sorted(rows, key=lambda r: r["t_capture"])
     capture = np.array([r["t_capture"] for r in rows])
-    source = np.array([r["t_source"] for r in rows])
-    order = np.argsort(capture)
-    capture, source = capture[order], source[order]
-    keep, t, pos, quat, vel, t_cap, arrival, counters = [], [], [], [], [], [], [], []
-    for m in messages:
-        stamp = (m.fields["time_usec"] if m.kind == "ODOMETRY" else m.fields["usec"]) / 1e6
-        k = int(np.clip(np.searchsorted(capture, stamp), 1, max(len(capture) - 1, 1)))
-        near = min((k - 1, k), key=lambda i: abs(capture[i] - stamp)) if len(capture) > 1 else 0
-        if not len(capture) or abs(capture[near] - stamp) > STAMP_TOLERANCE_S:
-            continue
-        p, q, v = _pose(m)
-        if m.kind != "ODOMETRY" and m.fields["usec"] in speeds:
-            s = speeds[m.fields["usec"]]
-            v = np.array([s["x"], s["y"], s["z"]])
-        keep.append(m)
-        t.append(source[near])
-        pos.append(p)
-        quat.append(q)
-        vel.append(v)
-        t_cap.append(capture[near])
-        arrival.append(m.t_arrival)
-        counters.append(m.fields["reset_counter"])
-    resets = int(np.count_nonzero(np.diff(counters))) if counters else 0
-    return Received(Trajectory(np.array(t), np.array(pos).reshape(-1, 3),
-                               np.array(quat).reshape(-1, 4)),
-                    np.array(vel).reshape(-1, 3), np.array(t_cap), np.array(arrival), resets)
+    messages = _pose_messages(received)
+    index = nearest(capture, np.array([_stamp(m) for m in messages]), STAMP_TOLERANCE_S)
+    matched = [(m, i) for m, i in zip(messages, index, strict=True) if i >= 0]
+    poses = [_pose(m, speeds) for m, _ in matched]
+    frames = [i for _, i in matched]
+    counters = [m.fields["reset_counter"] for m, _ in matched]
+    trajectory = Trajectory(np.array([rows[i]["t_source"] for i in frames]),
+                            np.array([p for p, _, _ in poses]).reshape(-1, 3),
+                            np.array([q for _, q, _ in poses]).reshape(-1, 4))
+    return Received(trajectory, np.array([v for _, _, v in poses]).reshape(-1, 3),
+                    capture[frames], np.array([m.t_arrival for m, _ in matched]),
+                    int(np.count_nonzero(np.diff(counters))) if counters else 0)
 
 
 def start_aligned(flight: Trajectory, estimate: Trajectory) -> Trajectory:
