@@ -130,3 +130,20 @@ def test_vamr_first_frames(data_dir):
     assert len(est) >= 135
     ev = evaluate(seq.groundtruth, est, "sim3")
     assert ev.ate_rmse_m < 0.005
+
+
+def test_map_stays_bounded_on_a_long_flight(data_dir):
+    cam = small_camera()
+    tex = load_texture(data_dir)
+    tracker = Tracker(cam, TrackerConfig(max_keyframes=5, kf_min_frames=10))
+    sizes, tracked = [], 0
+    for i in range(600):
+        # a straight survey line: the map must keep dropping what falls behind
+        T = look_down_pose(0.01 * i, 0.2 * np.sin(i * 0.01), 1.5, yaw=0.1 * np.sin(0.01 * i))
+        r = tracker.process(render_plane(tex, cam, T), i / 30.0)
+        tracked += r.has_pose
+        assert len(tracker.map) <= 5
+        sizes.append((tracker.map.points.capacity, len(tracker.map.obs)))
+    assert tracked >= 0.95 * 600
+    capacity, obs = np.array(sizes).T
+    assert capacity[-1] == capacity[200] and obs.max() < 5 * capacity[-1]
