@@ -3,6 +3,7 @@ groundtruth.txt, and optionally imu.csv and sensors.csv."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,19 @@ from sim.textfile import check_increasing, parse_floats, read_lines, read_numeri
 from sim.trajectory import read_tum
 
 IMU_COLUMNS = "t ax ay az gx gy gz"
+SENSOR_COLUMNS = "t qx qy qz qw baro_alt range range_valid"
+
+
+@dataclass
+class SensorSamples:
+    """Autopilot signals: `attitude` (N, 4) xyzw quaternions R_world_body (NED from FRD),
+    `baro_alt` (N,) m up, `range` (N,) m along the body's down axis, valid where `range_valid`."""
+
+    t: np.ndarray
+    attitude: np.ndarray
+    baro_alt: np.ndarray
+    range: np.ndarray
+    range_valid: np.ndarray
 
 
 def is_layout(path: Path) -> bool:
@@ -49,14 +63,32 @@ def write_imu_csv(imu: ImuSamples, path: Path) -> None:
                header=IMU_COLUMNS.replace(" ", ","), comments="# ")
 
 
+def read_sensors_csv(path: Path) -> SensorSamples:
+    """Autopilot signals from `t qx qy qz qw baro_alt range range_valid` rows."""
+    data = read_numeric_table(path, 8, SENSOR_COLUMNS)
+    check_increasing(data[:, 0], path)
+    return SensorSamples(data[:, 0], data[:, 1:5], data[:, 5], data[:, 6], data[:, 7] > 0.5)
+
+
+def write_sensors_csv(sensors: SensorSamples, path: Path) -> None:
+    """Write autopilot signals in the format `read_sensors_csv` reads."""
+    rows = np.column_stack([sensors.t, sensors.attitude, sensors.baro_alt, sensors.range,
+                            sensors.range_valid.astype(float)])
+    np.savetxt(path, rows, fmt="%.9f", delimiter=",", header=SENSOR_COLUMNS.replace(" ", ","),
+               comments="# ")
+
+
 def read_layout(path: Path, camera: CameraModel | None = None) -> Sequence:
     """A sequence in the shared-data layout; `camera` overrides its camera.yaml."""
     times, files = read_frame_list(path / "frames.txt")
     camera = camera or load_camera(path / "camera.yaml")
     gt_path, imu_path = path / "groundtruth.txt", path / "imu.csv"
+    extras = {"root": path}
+    if (path / "sensors.csv").is_file():
+        extras["sensors"] = read_sensors_csv(path / "sensors.csv")
     return image_list_sequence(
         path.name, camera, times, files,
         groundtruth=read_tum(gt_path) if gt_path.is_file() else None,
         imu=read_imu_csv(imu_path) if imu_path.is_file() else None,
-        extras={"root": path},
+        extras=extras,
     )

@@ -1,0 +1,47 @@
+"""Events of a synthetic flight: people walking through the view, the lens covered for a
+while (blackout) and a jump in the video (kidnap: no frames for a while the drone moves)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.synth.scene import Walker
+
+
+@dataclass(frozen=True)
+class Interval:
+    """[start, end) seconds."""
+
+    start: float
+    end: float
+
+    def contains(self, t: float | np.ndarray):
+        """True where t is inside."""
+        return (t >= self.start) & (t < self.end)
+
+
+def walkers_across(center, radius: float, count: int, duration: float, texture: int,
+                   rng: np.random.Generator, speed: float = 1.4) -> list[Walker]:
+    """`count` people-sized boxes crossing a disc of `radius` m around `center` (x, y) at
+    walking speed, each entering at a random time of the flight."""
+    out = []
+    for k in range(count):
+        heading = rng.uniform(0, 2 * np.pi)
+        direction = np.array([np.cos(heading), np.sin(heading)])
+        offset = rng.uniform(-0.6, 0.6) * radius * np.array([-direction[1], direction[0]])
+        start = np.asarray(center[:2], float) + offset - direction * radius
+        v = direction * speed * rng.uniform(0.7, 1.3)
+        t0 = rng.uniform(0.0, max(duration - 2 * radius / speed, 0.1))
+        out.append(Walker(start, v, t0, texture, 0.004, int(rng.integers(1 << 30)) + k))
+    return out
+
+
+def frame_times(duration: float, fps: float, gaps: tuple[Interval, ...]) -> np.ndarray:
+    """Frame timestamps at `fps` over the flight, none inside the gaps (kidnaps)."""
+    t = np.arange(int(np.floor(duration * fps + 1e-9)) + 1) / fps
+    keep = np.ones(t.size, bool)
+    for gap in gaps:
+        keep &= ~gap.contains(t)
+    return t[keep]
