@@ -29,6 +29,12 @@ def open_sequence(path: str | Path, camera: str | Path | CameraModel | None = No
     if isinstance(camera, str | Path):
         camera = load_camera(camera)
     if not path.exists():
+        from sim.synth.presets import PRESETS  # heavy (numba): only for preset names
+
+        if str(path) in PRESETS:
+            from sim.synth.flight import synthetic_sequence
+
+            return synthetic_sequence(str(path))
         raise InputError("no such file or folder", path)
     if path.is_file():
         if path.suffix.lower() in VIDEO_SUFFIXES:
