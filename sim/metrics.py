@@ -109,6 +109,17 @@ def align_trajectories(groundtruth: Trajectory, estimate: Trajectory,
     return Aligned(gt, moved, R, t, s)
 
 
+def orientation_errors(gt: Rotation, est: Rotation, align: bool) -> np.ndarray:
+    """Angles (rad) between ground-truth and estimated orientations, after the one rotation
+    that best aligns the orientations themselves when `align` (a position fit says nothing
+    about rotation when the camera barely moves)."""
+    if align:
+        U, _, Vt = np.linalg.svd(np.einsum("nij,nkj->ik", gt.as_matrix(), est.as_matrix()))
+        D = np.diag([1.0, 1.0, np.linalg.det(U @ Vt)])
+        est = Rotation.from_matrix(U @ D @ Vt) * est
+    return (gt.inv() * est).magnitude()
+
+
 def relative_pose_error(gt: Trajectory, est: Trajectory,
                         delta_m: float) -> tuple[float, float] | None:
     """Mean translation error (% of distance) and rotation error (deg per metre) over segments
@@ -160,7 +171,7 @@ def evaluate(groundtruth: Trajectory, estimate: Trajectory, align: str = "sim3",
         tracked = None
     a = align_trajectories(groundtruth, estimate, align)
     errors = np.linalg.norm(a.groundtruth.positions - a.estimate.positions, axis=1)
-    rot_err = (a.groundtruth.rotations.inv() * a.estimate.rotations).magnitude()
+    rot_err = orientation_errors(a.groundtruth.rotations, a.estimate.rotations, align != "none")
     length = a.groundtruth.path_length()
     delta = rpe_delta_m if rpe_delta_m is not None else length / 10.0
     rpe = relative_pose_error(a.groundtruth, a.estimate, delta) if delta > 0 else None

@@ -108,3 +108,15 @@ def test_eval_command_bad_input_is_one_line_exit_2(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err == (f"sdvl eval: error: {bad}:3: expected t tx ty tz qx qy qz qw "
                    "(8 values), got 7")
+
+
+def test_rotation_error_is_aligned_on_orientations_not_positions():
+    # a camera that only rotates: the position fit is meaningless, the rotation error is not
+    rng = np.random.default_rng(5)
+    t = np.arange(200) * 0.03
+    gt = Trajectory(t, rng.normal(0, 1e-3, (200, 3)),
+                    Rotation.from_euler("xyz", np.column_stack([np.sin(t), np.cos(t), t]))
+                    .as_quat())
+    offset = Rotation.from_rotvec([0.4, -1.0, 2.0])
+    est = Trajectory(t, rng.normal(0, 1e-3, (200, 3)), (offset * gt.rotations).as_quat())
+    assert evaluate(gt, est, "sim3").rot_rmse_deg < 1e-6
