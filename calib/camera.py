@@ -34,7 +34,7 @@ MODEL_ALIASES = {
 }
 N_COEFFS = {"none": (0, 5), "radtan_opencv": (4, 5), "equidistant": (4, 4)}
 
-# params layout: [kind, fx, fy, cx, cy, d0, d1, d2, d3, d4]
+# params layout: [kind, fx, fy, cx, cy, d0, d1, d2, d3, d4, r2_max]
 _NEWTON_ITERATIONS = 30
 _NEWTON_TOL = 1e-14
 
@@ -87,6 +87,8 @@ def project_point(params, X, Y, Z):
         xd = X / Z
         yd = Y / Z
         if kind == KIND_RADTAN:
+            if xd * xd + yd * yd > params[10]:
+                return np.nan, np.nan
             xd, yd, _, _, _, _ = _radtan(d, xd, yd)
     return params[1] * xd + params[3], params[2] * yd + params[4]
 
@@ -188,12 +190,25 @@ class CameraModel:
 
     @cached_property
     def params(self) -> np.ndarray:
-        """The float64 array numba kernels take: [kind, fx, fy, cx, cy, d0..d4]."""
-        p = np.zeros(10)
+        """The float64 array numba kernels take: [kind, fx, fy, cx, cy, d0..d4, r2_max]."""
+        p = np.zeros(11)
         p[0] = MODEL_KINDS[self.distortion_model]
         p[1:5] = (self.fx, self.fy, self.cx, self.cy)
         p[5 : 5 + len(self.distortion)] = self.distortion
+        p[10] = self.max_radius2()
         return p
+
+    def max_radius2(self) -> float:
+        """Squared normalised radius up to which radial distortion still grows with the radius;
+        beyond it the polynomial folds back and points outside the lens's view would land in
+        the image, so `project` returns NaN there."""
+        if self.distortion_model != "radtan_opencv":
+            return np.inf
+        k1, k2, _, _, k3 = self.dist_coeffs
+        # d/dr [r (1 + k1 r^2 + k2 r^4 + k3 r^6)] = 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3, s = r^2
+        roots = np.roots([7.0 * k3, 5.0 * k2, 3.0 * k1, 1.0])
+        real = roots[(np.abs(roots.imag) < 1e-12) & (roots.real > 0)].real
+        return float(real.min()) if real.size else np.inf
 
     @property
     def K(self) -> np.ndarray:

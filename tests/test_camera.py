@@ -107,3 +107,12 @@ def test_bad_camera_yaml_names_file_line_and_problem(tmp_path, text, message, li
     assert message in info.value.message
     assert info.value.path == str(path)
     assert info.value.line == line
+
+
+def test_radtan_beyond_its_monotonic_radius_is_not_visible():
+    barrel = CameraModel(640, 480, 300.0, 300.0, 320.0, 240.0, "radtan_opencv",
+                         (-0.5, 0.0, 0.0, 0.0, 0.0))
+    # r (1 - 0.5 r^2) peaks at r^2 = 2/3: a point further out would fold back into the image
+    assert barrel.max_radius2() == pytest.approx(2.0 / 3.0)
+    inside, outside = barrel.project(np.array([[0.8, 0.0, 1.0], [1.2, 0.0, 1.0]]))
+    assert np.isfinite(inside).all() and np.isnan(outside).all()
