@@ -138,8 +138,8 @@ def kidnap(seed: int, textures: str | None) -> FlightSpec:
 
 
 def fast_down(seed: int, textures: str | None) -> FlightSpec:
-    """Low (5 m) and fast (8 m/s) lawnmower with a longer shutter: motion blur."""
-    return FlightSpec(_survey_path(5.0, 2, 40.0, 6.0, 8.0), outdoor_scene(seed, textures),
+    """Low (5 m) and fast (6 m/s) lawnmower with a longer shutter: motion blur."""
+    return FlightSpec(_survey_path(5.0, 2, 40.0, 12.0, 6.0), outdoor_scene(seed, textures),
                       effects=Effects(shutter=0.008))
 
 

@@ -1,9 +1,9 @@
-"""Smooth body trajectories in the NED world: quintic splines through timed waypoints.
+"""Smooth body trajectories in the NED world: degree-7 splines through timed waypoints.
 
-Positions are a C4 quintic spline (zero velocity and acceleration at both ends), so the
-acceleration and the angular rate an IMU measures are smooth. Attitude is either that of a
-multirotor (thrust axis along the specific force, yaw from its own spline) or free (a hand-held
-device: yaw, pitch and roll splines).
+Positions are a C6 spline with zero velocity, acceleration and jerk at both ends, so the
+acceleration and the angular rate an IMU measures are smooth and start and end at rest.
+Attitude is either that of a multirotor (thrust axis along the specific force, yaw from its own
+spline) or free (a hand-held device: yaw, pitch and roll splines).
 """
 
 from __future__ import annotations
@@ -16,15 +16,15 @@ from scipy.spatial.transform import Rotation
 
 GRAVITY = 9.80665
 G_NED = np.array([0.0, 0.0, GRAVITY])
-_REST = ([(1, 0.0), (2, 0.0)], [(1, 0.0), (2, 0.0)])
+_REST = ([(1, 0.0), (2, 0.0), (3, 0.0)], [(1, 0.0), (2, 0.0), (3, 0.0)])
 _DIFF_STEP = 1e-4  # s, central difference of the attitude for the angular rate
 
 
-def quintic(t: np.ndarray, values: np.ndarray) -> BSpline:
-    """A quintic spline through (t, values) that starts and ends at rest."""
+def rest_spline(t: np.ndarray, values: np.ndarray) -> BSpline:
+    """A degree-7 spline through (t, values) that starts and ends at rest."""
     values = np.asarray(values, dtype=np.float64)
     bc = tuple([(d, np.zeros(values.shape[1:])) for d, _ in end] for end in _REST)
-    return make_interp_spline(np.asarray(t, float), values, k=5, bc_type=bc)
+    return make_interp_spline(np.asarray(t, float), values, k=7, bc_type=bc)
 
 
 @dataclass
@@ -94,10 +94,11 @@ class BodyPath:
 def path_from_waypoints(t, positions, yaw, pitch=None, roll=None) -> BodyPath:
     """A BodyPath through timed waypoints (angles in radians, unwrapped by the caller)."""
     t = np.asarray(t, float)
-    free = pitch is not None
-    return BodyPath(quintic(t, positions), quintic(t, yaw),
-                    quintic(t, pitch) if free else None,
-                    quintic(t, roll if roll is not None else np.zeros_like(t)) if free else None)
+    if pitch is None:
+        return BodyPath(rest_spline(t, positions), rest_spline(t, yaw))
+    roll = np.zeros_like(t) if roll is None else roll
+    return BodyPath(rest_spline(t, positions), rest_spline(t, yaw), rest_spline(t, pitch),
+                    rest_spline(t, roll))
 
 
 def ramp_speed_profile(length: float, speed: float, ramp_s: float, dt: float) -> np.ndarray:
