@@ -68,7 +68,9 @@ def test_fusion_replay_scores_ned_positions_after_the_start_alignment(tmp_path, 
                      make_tracker=lambda frame: GroundTruthTracker(gt))
     r, aligned, reference = build_report(run, tmp_path)
     assert r["estimator"] == "fusion" and r["align"] == "start" and r["scale"] == 1.0
-    assert r["dropped"] == 0 and r["tracked"] == len(gt) and r["resets"] == 0
+    assert r["resets"] == 0
+    assert r["dropped"] <= 0.05 * len(gt)  # realtime: a loaded test machine may drop a few
+    assert r["tracked"] == r["processed"]
     assert r["messages_received"] >= 150  # published once scale and heading converged
     assert r["ate_rmse_m"] < 0.05 and r["rot_rmse_deg"] < 1.0
     assert r["velocity_rmse_m_s"] < 0.1

@@ -13,9 +13,16 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from calib.errors import InputError
-from daemon.config import Config, MountingConfig, replace
+from daemon.config import Config, replace
+from daemon.mounting import body_from_camera
 from sim.replay.autopilot_process import ReplayVehicle, VisionMessage
-from sim.replay.flight import body_imu, sensor_streams, vehicle_trajectory
+from sim.replay.flight import (
+    body_imu,
+    drone_config,
+    is_ned,
+    sensor_streams,
+    vehicle_trajectory,
+)
 from sim.replay.harness import ReplayRun, choose_estimator, run_replay
 from sim.replay.report import KEYS, build_report, received_poses, start_aligned, velocity_at
 from sim.sequence import ImuSamples
@@ -33,9 +40,26 @@ def test_down_camera_ground_truth_becomes_a_level_body():
     # a downward camera on a level body facing north: camera x = east, y = south, z = down
     R_ned_c = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     camera = Trajectory([0.0], [[1.0, 2.0, -3.0]], Rotation.from_matrix(R_ned_c).as_quat())
-    body = vehicle_trajectory(camera, MountingConfig(preset="down"))
+    body = vehicle_trajectory(camera, replace(Config(), mounting={"preset": "down"}))
     np.testing.assert_allclose(body.positions, [[1.0, 2.0, -3.0]])
     np.testing.assert_allclose(body.rotations.as_matrix()[0], np.eye(3), atol=1e-12)
+
+
+def test_a_sequence_brings_its_own_mounting_and_lever_arm():
+    R_b_c = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # forward camera
+    T_b_c = np.eye(4)
+    T_b_c[:3, :3], T_b_c[:3, 3] = R_b_c, [0.05, 0.0, 0.04]
+    sequence = SimpleNamespace(extras={"T_b_c": T_b_c, "world": "NED"})
+    config = drone_config(Config(), sequence)
+    np.testing.assert_allclose(body_from_camera(config.mounting), R_b_c, atol=1e-12)
+    assert (config.fusion.camera_x_m, config.fusion.camera_z_m) == (0.05, 0.04)
+    assert is_ned(sequence) and not is_ned(SimpleNamespace(extras={}))
+    # body level and facing north at the origin: the camera is 5 cm ahead and 4 cm below
+    camera = Trajectory([0.0], [[0.05, 0.0, 0.04]], Rotation.from_matrix(R_b_c).as_quat())
+    body = vehicle_trajectory(camera, config)
+    np.testing.assert_allclose(body.positions, [[0.0, 0.0, 0.0]], atol=1e-12)
+    np.testing.assert_allclose(body.rotations.as_matrix()[0], np.eye(3), atol=1e-12)
+    assert drone_config(Config(), SimpleNamespace(extras={})) == Config()
 
 
 def test_rangefinder_only_when_the_flight_stays_in_its_range():
@@ -144,7 +168,7 @@ def test_report_keys_are_the_documented_ones(tmp_path):
 
 def test_fusion_only_for_sequences_that_know_down_and_only_in_realtime():
     handheld = SimpleNamespace(extras={})
-    synthetic = SimpleNamespace(extras={"T_ned_world": np.eye(4)})
+    synthetic = SimpleNamespace(extras={"world": "NED"})
     fusion_on = replace(Config(), fusion={"enabled": True})
     assert not choose_estimator(fusion_on, handheld, "auto").fusion.enabled
     assert choose_estimator(fusion_on, synthetic, "auto").fusion.enabled

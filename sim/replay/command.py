@@ -15,12 +15,8 @@ from pathlib import Path
 from calib.errors import InputError
 from daemon.config import Config, load_config
 from daemon.run_command import setup_logging
-from sim.replay.harness import (
-    choose_estimator,
-    during_replay,
-    has_gravity_reference,
-    run_replay,
-)
+from sim.replay.flight import is_ned
+from sim.replay.harness import choose_estimator, during_replay, run_replay
 from sim.replay.report import build_report, format_report
 
 DEFAULT_PRESET = "survey-down"
@@ -84,6 +80,6 @@ def run(args: argparse.Namespace) -> int:
 
         plot_replay(aligned, during_replay(reference, replay), args.plot,
                     f"sdvl replay {sequence.name}: {report['mode']}, {report['estimator']}",
-                    ned=has_gravity_reference(sequence))
+                    ned=is_ned(sequence))
     print(json.dumps(report) if args.json else format_report(report))
     return replay.exit_code

@@ -1,21 +1,23 @@
 """The flight the simulated autopilot replays: the vehicle (body FRD) in NED from a sequence's
 camera ground truth, and the sensor streams that make sense for it.
 
-A sequence whose ground-truth world is not NED says how it relates in
-`extras["T_ned_world"]` (4x4); without it the ground-truth world is taken as NED (datasets
-recorded by hand have no gravity reference; the scores use a Sim(3) alignment then anyway).
-Recorded IMU samples are streamed instead of the ones derived from the ground truth when the
-sequence says they are in the body frame (`extras["imu_frame"] == "body_frd"`).
+Synthetic flights (sim.synth) say `extras["world"] == "NED"`, bring their camera mounting as
+`extras["T_b_c"]` and record their IMU in the body frame. Another sequence whose ground-truth
+world is not NED may say how it relates in `extras["T_ned_world"]` (4x4); without it the
+ground-truth world is taken as NED (datasets recorded by hand have no gravity reference; the
+scores use a Sim(3) alignment then anyway). Recorded IMU samples are streamed instead of the ones
+derived from the ground truth when they are in the body frame (synthetic flights, or
+`extras["imu_frame"] == "body_frd"`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 from scipy.interpolate import CubicSpline
-from scipy.spatial.transform import Slerp
+from scipy.spatial.transform import Rotation, Slerp
 
-from daemon.config import MountingConfig
-from daemon.mounting import body_from_camera
+from daemon.config import Config, replace
+from daemon.mounting import R_BODY_FORWARD_CAMERA, body_from_camera
 from sim.autopilot.simulator import DEFAULT_STREAMS
 from sim.sequence import ImuSamples
 from sim.trajectory import Trajectory
@@ -24,13 +26,40 @@ RANGEFINDER_M = (0.2, 40.0)  # DISTANCE_SENSOR min and max distance the simulato
 RESAMPLE_HZ = 200.0
 
 
-def vehicle_trajectory(groundtruth: Trajectory, mounting: MountingConfig,
+def is_ned(sequence: object) -> bool:
+    """Whether the sequence says where NED is (synthetic flights do); a hand-held dataset's
+    world has no known down."""
+    extras = getattr(sequence, "extras", {})
+    return extras.get("world") == "NED" or "T_ned_world" in extras
+
+
+def drone_config(config: Config, sequence: object) -> Config:
+    """The config with the sequence's own camera mounting (`extras["T_b_c"]`: rotation as the
+    mounting, lever arm as the fusion's camera position), so the service describes the drone
+    that flew; unchanged for sequences that do not bring one."""
+    T_b_c = getattr(sequence, "extras", {}).get("T_b_c")
+    if T_b_c is None:
+        return config
+    T_b_c = np.asarray(T_b_c, dtype=np.float64)
+    yaw, pitch, roll = np.degrees(Rotation.from_matrix(
+        T_b_c[:3, :3] @ R_BODY_FORWARD_CAMERA.T).as_euler("ZYX"))
+    x, y, z = (float(v) for v in T_b_c[:3, 3])
+    return replace(config, mounting={"preset": "custom", "roll_deg": float(roll),
+                                     "pitch_deg": float(pitch), "yaw_deg": float(yaw)},
+                   fusion={"camera_x_m": x, "camera_y_m": y, "camera_z_m": z})
+
+
+def vehicle_trajectory(groundtruth: Trajectory, config: Config,
                        T_ned_world: np.ndarray | None = None) -> Trajectory:
-    """T_ned_b(t) = T_ned_w T_w_c(t) T_c_b: where the body is when the camera is at T_w_c."""
+    """T_ned_b(t) = T_ned_w T_w_c(t) T_c_b: where the body is when the camera is at T_w_c, with
+    the config's mounting and camera lever arm."""
     T_ned_w = np.eye(4) if T_ned_world is None else np.asarray(T_ned_world, dtype=np.float64)
-    T_c_b = np.eye(4)
-    T_c_b[:3, :3] = body_from_camera(mounting).T
-    return Trajectory.from_matrices(groundtruth.t, T_ned_w @ groundtruth.matrices() @ T_c_b)
+    T_b_c = np.eye(4)
+    T_b_c[:3, :3] = body_from_camera(config.mounting)
+    T_b_c[:3, 3] = (config.fusion.camera_x_m, config.fusion.camera_y_m,
+                    config.fusion.camera_z_m)
+    return Trajectory.from_matrices(groundtruth.t,
+                                    T_ned_w @ groundtruth.matrices() @ np.linalg.inv(T_b_c))
 
 
 def resampled(flight: Trajectory, rate_hz: float = RESAMPLE_HZ) -> Trajectory:
@@ -49,7 +78,9 @@ def resampled(flight: Trajectory, rate_hz: float = RESAMPLE_HZ) -> Trajectory:
 def body_imu(sequence: object) -> ImuSamples | None:
     """The sequence's recorded IMU when it is in body FRD, else None (derive it)."""
     imu = getattr(sequence, "imu", None)
-    return imu if imu is not None and sequence.extras.get("imu_frame") == "body_frd" else None
+    extras = getattr(sequence, "extras", {})
+    in_body = extras.get("world") == "NED" or extras.get("imu_frame") == "body_frd"
+    return imu if imu is not None and in_body else None
 
 
 def sensor_streams(flavour: str, flight: Trajectory | None) -> dict[str, float]:

@@ -22,7 +22,14 @@ from daemon.run_command import camera_model, tracker_factory
 from daemon.service import Service
 from sim.autopilot import SimOptions
 from sim.replay.autopilot_process import AutopilotProcess, VisionMessage
-from sim.replay.flight import body_imu, resampled, sensor_streams, vehicle_trajectory
+from sim.replay.flight import (
+    body_imu,
+    drone_config,
+    is_ned,
+    resampled,
+    sensor_streams,
+    vehicle_trajectory,
+)
 from sim.replay.progress import Progress
 from sim.replay.recording import Recorder
 from sim.trajectory import Trajectory
@@ -112,19 +119,12 @@ def during_replay(trajectory: Trajectory, run: ReplayRun) -> Trajectory:
     return trajectory.subset(inside) if inside.sum() >= 2 else trajectory
 
 
-def has_gravity_reference(sequence: object) -> bool:
-    """Whether the sequence says where NED is (`extras["T_ned_world"]`, synthetic flights do);
-    a hand-held dataset's world has no known down, so fusing it with the simulated autopilot's
-    sensors would score the made-up sensors rather than the service."""
-    return "T_ned_world" in getattr(sequence, "extras", {})
-
-
 def choose_estimator(config: Config, sequence: object, estimator: str) -> Config:
     """The config with `[fusion] enabled` set for `estimator`: 'fusion', 'pass-through', or
     'auto' (the config's choice where the sequence has a gravity reference, else
     pass-through)."""
     if estimator == "auto":
-        fusion = config.fusion.enabled and has_gravity_reference(sequence)
+        fusion = config.fusion.enabled and is_ned(sequence)
     else:
         fusion = estimator == "fusion"
     return replace(config, fusion={"enabled": fusion})
@@ -164,11 +164,12 @@ def run_replay(sequence: object, config: Config, realtime: bool,
                make_tracker: Callable | None = None) -> ReplayRun:
     """Play `sequence` through the service (its estimator as `config.fusion.enabled` says)
     against the simulated autopilot; `make_tracker(frame)` replaces the SDVL tracker (tests)."""
+    config = drone_config(config, sequence)
     fusion = config.fusion.enabled
     if fusion and not realtime:
         raise InputError("fusion needs --realtime: the autopilot's IMU runs on the wall clock")
     frames = FirstFrames(sequence, max_frames)
-    flight = (vehicle_trajectory(sequence.groundtruth, config.mounting,
+    flight = (vehicle_trajectory(sequence.groundtruth, config,
                                  sequence.extras.get("T_ned_world"))
               if sequence.groundtruth is not None else None)
     options = SimOptions(streams=sensor_streams("ardupilot", flight))
