@@ -74,3 +74,19 @@ def test_depth_is_distance_along_the_optical_axis(distance):
     seen = np.isfinite(depth)
     assert seen.sum() > 1000
     np.testing.assert_allclose(depth[seen], distance, rtol=1e-5)
+
+
+@pytest.mark.parametrize("preset", ["room-handheld", "walkers"])
+def test_culled_rendering_equals_testing_every_quad_on_every_pixel(preset, monkeypatch):
+    from sim.synth import raycast
+    from sim.synth.flight import synthetic_sequence
+
+    seq = synthetic_sequence(preset, size=(80, 60), textures="procedural")
+    times = np.linspace(0.0, seq.timestamps[-1], 6)
+    culled = [seq.image_loader.ideal(float(t)) for t in times]
+    monkeypatch.setattr(raycast, "quad_bounds",
+                        lambda quads, *_: np.tile([0, 79, 0, 59], (len(quads), 1)))
+    for t, (image, depth) in zip(times, culled, strict=True):
+        full_image, full_depth = seq.image_loader.ideal(float(t))
+        np.testing.assert_array_equal(image, full_image)
+        np.testing.assert_array_equal(depth, full_depth)

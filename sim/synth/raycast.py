@@ -55,23 +55,40 @@ def _clip_near(points: np.ndarray) -> np.ndarray:
     return np.array(out).reshape(-1, 3)
 
 
+def _pixel_span(lo: np.ndarray, hi: np.ndarray, low_edge: np.ndarray,
+                high_edge: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """First and last column (or row) whose normalised-plane extent overlaps [lo, hi]; the
+    extents are made monotonic (conservatively) so a binary search finds them."""
+    high_edge = np.maximum.accumulate(high_edge)
+    low_edge = np.minimum.accumulate(low_edge[::-1])[::-1]
+    first = np.searchsorted(high_edge, lo, "left")
+    last = np.searchsorted(low_edge, hi, "right") - 1
+    return first, last
+
+
 def quad_bounds(quads: QuadList, R_w_c: np.ndarray, c_w: np.ndarray,
                 cols: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """(Q, 4) pixel box [col0, col1, row0, row1] (inclusive) each quad may cover; col0 = -1
     when it cannot be seen."""
     g = quads.geometry
-    out = np.full((len(quads), 4), -1, np.int64)
-    for q in range(len(quads)):
-        o, u, v, eu, ev = g[q, :3], g[q, 3:6], g[q, 6:9], g[q, 9], g[q, 10]
-        corners = np.array([o, o + u * eu, o + u * eu + v * ev, o + v * ev])
-        poly = _clip_near((corners - c_w) @ R_w_c)
-        if len(poly) == 0:
-            continue
-        xn, yn = poly[:, 0] / poly[:, 2], poly[:, 1] / poly[:, 2]
-        c_in = np.flatnonzero((cols[1] >= xn.min()) & (cols[0] <= xn.max()))
-        r_in = np.flatnonzero((rows[1] >= yn.min()) & (rows[0] <= yn.max()))
-        if c_in.size and r_in.size:
-            out[q] = (c_in[0], c_in[-1], r_in[0], r_in[-1])
+    o, u, v = g[:, None, 0:3], g[:, None, 3:6], g[:, None, 6:9]
+    s = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)[None]
+    eu, ev = g[:, None, 9:10], g[:, None, 10:11]
+    corners = o + u * eu * s[..., :1] + v * ev * s[..., 1:]  # (Q, 4, 3)
+    cam = (corners - c_w) @ R_w_c
+    lo = np.full((len(quads), 2), np.inf)
+    hi = np.full((len(quads), 2), -np.inf)
+    front = np.all(cam[..., 2] >= NEAR, axis=1)
+    xy = cam[front, :, :2] / cam[front, :, 2:]
+    lo[front], hi[front] = xy.min(axis=1), xy.max(axis=1)
+    for q in np.flatnonzero(~front & np.any(cam[..., 2] >= NEAR, axis=1)):
+        poly = _clip_near(cam[q])
+        lo[q], hi[q] = (poly[:, :2] / poly[:, 2:]).min(axis=0), (poly[:, :2] / poly[:, 2:]).max(0)
+    c0, c1 = _pixel_span(lo[:, 0], hi[:, 0], cols[0], cols[1])
+    r0, r1 = _pixel_span(lo[:, 1], hi[:, 1], rows[0], rows[1])
+    out = np.column_stack([c0, c1, r0, r1]).astype(np.int64)
+    seen = np.isfinite(lo[:, 0]) & (c0 <= c1) & (r0 <= r1)
+    out[~seen] = -1
     return out
 
 
@@ -129,17 +146,12 @@ def sample_texture(pixels, levels, n_levels, tex, x, y, lod):
 
 
 @numba.njit(cache=True, nogil=True)
-def render_kernel(rays, pixel_angle, R, c, geom, tex, gain, bounds, pixels, levels, n_levels,
-                  background):
-    """Grey image (float32, 0..255 before effects) and depth along the optical axis (m; inf
-    where nothing is hit) of the scene seen from T_w_c = (R, c)."""
+def nearest_quads(rays, R, c, geom, bounds):
+    """Depth along the optical axis (inf where nothing is hit) and the index of the nearest
+    quad (-1) of every pixel; each quad is tested only inside its pixel box."""
     h, w = rays.shape[0], rays.shape[1]
     depth = np.full((h, w), np.inf, np.float32)
-    hit = np.full((h, w), -1, np.int64)
-    hit_t = np.zeros((h, w))
-    hit_a = np.zeros((h, w))
-    hit_b = np.zeros((h, w))
-    hit_cos = np.zeros((h, w))
+    hit = np.full((h, w), -1, np.int32)
     for q in range(geom.shape[0]):
         if bounds[q, 0] < 0:
             continue
@@ -149,25 +161,38 @@ def render_kernel(rays, pixel_angle, R, c, geom, tex, gain, bounds, pixels, leve
                 dx = R[0, 0] * x + R[0, 1] * y + R[0, 2] * z
                 dy = R[1, 0] * x + R[1, 1] * y + R[1, 2] * z
                 dz = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z
-                t, a, b, cos = ray_quad(geom, q, c[0], c[1], c[2], dx, dy, dz)
+                t = ray_quad(geom, q, c[0], c[1], c[2], dx, dy, dz)[0]
                 if t * z < NEAR or t * z >= depth[r, col]:
                     continue
                 depth[r, col] = t * z
-                hit[r, col], hit_t[r, col], hit_a[r, col] = q, t, a
-                hit_b[r, col], hit_cos[r, col] = b, cos
+                hit[r, col] = q
+    return depth, hit
+
+
+@numba.njit(cache=True, nogil=True)
+def shade(rays, pixel_angle, R, c, geom, tex, gain, hit, pixels, levels, n_levels,
+          background):
+    """Grey image (float32, 0..255 before effects): each pixel's quad, sampled at the mip level
+    of the pixel's footprint on it."""
+    h, w = rays.shape[0], rays.shape[1]
     image = np.full((h, w), background, np.float32)
     for r in range(h):
         for col in range(w):
             q = hit[r, col]
             if q < 0:
                 continue
+            x, y, z = rays[r, col, 0], rays[r, col, 1], rays[r, col, 2]
+            dx = R[0, 0] * x + R[0, 1] * y + R[0, 2] * z
+            dy = R[1, 0] * x + R[1, 1] * y + R[1, 2] * z
+            dz = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z
+            t, a, b, cos = ray_quad(geom, q, c[0], c[1], c[2], dx, dy, dz)
             texel = geom[q, 11]
-            footprint = hit_t[r, col] * pixel_angle[r, col] / max(hit_cos[r, col], MIN_COS)
+            footprint = t * pixel_angle[r, col] / max(cos, MIN_COS)
             lod = math.log2(max(footprint / texel, 1e-9))
-            x = hit_a[r, col] / texel + geom[q, 12]
-            y = hit_b[r, col] / texel + geom[q, 13]
-            image[r, col] = gain[q] * sample_texture(pixels, levels, n_levels, tex[q], x, y, lod)
-    return image, depth
+            u = a / texel + geom[q, 12]
+            v = b / texel + geom[q, 13]
+            image[r, col] = gain[q] * sample_texture(pixels, levels, n_levels, tex[q], u, v, lod)
+    return image
 
 
 @numba.njit(cache=True, nogil=True)
@@ -190,7 +215,8 @@ def render(scene: Scene, camera: CameraModel, T_w_c: np.ndarray,
     R = np.ascontiguousarray(T_w_c[:3, :3], dtype=np.float64)
     c = np.ascontiguousarray(T_w_c[:3, 3], dtype=np.float64)
     bounds = quad_bounds(quads, R, c, cols, rows)
+    depth, hit = nearest_quads(rays, R, c, quads.geometry, bounds)
     atlas = scene.atlas
-    return render_kernel(rays, pixel_angle, R, c, quads.geometry, quads.texture, quads.gain,
-                         bounds, atlas.pixels, atlas.levels, atlas.n_levels,
-                         float(scene.background))
+    image = shade(rays, pixel_angle, R, c, quads.geometry, quads.texture, quads.gain, hit,
+                  atlas.pixels, atlas.levels, atlas.n_levels, float(scene.background))
+    return image, depth
