@@ -62,5 +62,5 @@ def finish(image: np.ndarray, camera: CameraModel, effects: Effects, gain: float
     out = image * (gain * vignette(camera, effects.vignetting))
     if effects.read_noise > 0 or effects.shot_noise > 0:
         std = np.sqrt(effects.read_noise**2 + effects.shot_noise * np.maximum(out, 0.0))
-        out = out + std * rng.standard_normal(out.shape).astype(np.float32)
+        out = out + std * rng.standard_normal(out.shape, dtype=np.float32)
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)

@@ -38,7 +38,8 @@ def camera_rays(camera: CameraModel) -> tuple[np.ndarray, np.ndarray, tuple]:
     xn, yn = centre[..., 0] / centre[..., 2], centre[..., 1] / centre[..., 2]
     cols = np.stack([xn.min(axis=0), xn.max(axis=0)])
     rows = np.stack([yn.min(axis=1), yn.max(axis=1)])
-    return centre, np.maximum(du, dv), (cols, rows)
+    # float32 halves the memory the kernels stream through; 1e-7 rad is far below a pixel
+    return (centre.astype(np.float32), np.maximum(du, dv).astype(np.float32), (cols, rows))
 
 
 def _clip_near(points: np.ndarray) -> np.ndarray:
@@ -129,11 +130,13 @@ def _bilinear(pixels, offset, w, h, x, y):
 
 @numba.njit(cache=True, nogil=True)
 def sample_texture(pixels, levels, n_levels, tex, x, y, lod):
-    """Trilinear sample of texture `tex` at level-0 texel coordinates (x, y), level `lod`."""
+    """Mip-mapped sample of texture `tex` at level-0 texel coordinates (x, y), level `lod`:
+    bilinear on the nearest level, blended with the next one around half-way between them."""
     top = n_levels[tex] - 1
     lod = min(max(lod, 0.0), float(top))
     lv = min(int(lod), top - 1) if top > 0 else 0
-    frac = lod - lv if top > 0 else 0.0
+    # blend the two levels only in the middle half of the interval ("brilinear"): half the taps
+    frac = min(max(2.0 * (lod - lv) - 0.5, 0.0), 1.0) if top > 0 else 0.0
     value = 0.0
     for k in range(2):
         weight = 1.0 - frac if k == 0 else frac
