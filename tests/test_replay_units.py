@@ -46,7 +46,8 @@ def test_down_camera_ground_truth_becomes_a_level_body():
 
 
 def test_a_sequence_brings_its_own_mounting_and_lever_arm():
-    R_b_c = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # forward camera
+    R_b_c = Rotation.from_euler("z", 0.3).as_matrix() @ np.array(
+        [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # forward camera yawed 0.3 rad
     T_b_c = np.eye(4)
     T_b_c[:3, :3], T_b_c[:3, 3] = R_b_c, [0.05, 0.0, 0.04]
     sequence = SimpleNamespace(extras={"T_b_c": T_b_c, "world": "NED"})
@@ -60,6 +61,8 @@ def test_a_sequence_brings_its_own_mounting_and_lever_arm():
     np.testing.assert_allclose(body.positions, [[0.0, 0.0, 0.0]], atol=1e-12)
     np.testing.assert_allclose(body.rotations.as_matrix()[0], np.eye(3), atol=1e-12)
     assert drone_config(Config(), SimpleNamespace(extras={})) == Config()
+    T_b_c[:3, :3] = body_from_camera(Config().mounting)  # a down camera stays the preset
+    assert drone_config(Config(), sequence).mounting.preset == "down"
 
 
 def test_rangefinder_only_when_the_flight_stays_in_its_range():

@@ -19,7 +19,7 @@ from sim.replay.flight import is_ned
 from sim.replay.harness import choose_estimator, during_replay, run_replay
 from sim.replay.report import build_report, format_report
 
-DEFAULT_PRESET = "survey-down"
+DEFAULT_PRESET = "hover-down"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

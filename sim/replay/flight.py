@@ -16,8 +16,8 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation, Slerp
 
-from daemon.config import Config, replace
-from daemon.mounting import R_BODY_FORWARD_CAMERA, body_from_camera
+from daemon.config import Config, MountingConfig, replace
+from daemon.mounting import PRESET_ANGLES_DEG, R_BODY_FORWARD_CAMERA, body_from_camera
 from sim.autopilot.simulator import DEFAULT_STREAMS
 from sim.sequence import ImuSamples
 from sim.trajectory import Trajectory
@@ -41,12 +41,17 @@ def drone_config(config: Config, sequence: object) -> Config:
     if T_b_c is None:
         return config
     T_b_c = np.asarray(T_b_c, dtype=np.float64)
+    x, y, z = (float(v) for v in T_b_c[:3, 3])
+    lever = {"camera_x_m": x, "camera_y_m": y, "camera_z_m": z}
+    for preset in PRESET_ANGLES_DEG:
+        if np.allclose(body_from_camera(MountingConfig(preset=preset)), T_b_c[:3, :3],
+                       atol=1e-9):
+            return replace(config, mounting={"preset": preset}, fusion=lever)
     yaw, pitch, roll = np.degrees(Rotation.from_matrix(
         T_b_c[:3, :3] @ R_BODY_FORWARD_CAMERA.T).as_euler("ZYX"))
-    x, y, z = (float(v) for v in T_b_c[:3, 3])
     return replace(config, mounting={"preset": "custom", "roll_deg": float(roll),
                                      "pitch_deg": float(pitch), "yaw_deg": float(yaw)},
-                   fusion={"camera_x_m": x, "camera_y_m": y, "camera_z_m": z})
+                   fusion=lever)
 
 
 def vehicle_trajectory(groundtruth: Trajectory, config: Config,

@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import asyncio
 import resource
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -30,6 +32,7 @@ from sim.replay.flight import (
     sensor_streams,
     vehicle_trajectory,
 )
+from sim.replay.prerender import prerendered, renders_on_the_fly
 from sim.replay.progress import Progress
 from sim.replay.recording import Recorder
 from sim.trajectory import Trajectory
@@ -168,6 +171,17 @@ def run_replay(sequence: object, config: Config, realtime: bool,
     fusion = config.fusion.enabled
     if fusion and not realtime:
         raise InputError("fusion needs --realtime: the autopilot's IMU runs on the wall clock")
+    with tempfile.TemporaryDirectory(prefix="sdvl-replay-") as folder:
+        show = Progress(len(FirstFrames(sequence, max_frames)), progress)
+        if realtime and renders_on_the_fly(sequence):
+            show.note(f"replay {sequence.name}: rendering the frames first")
+            sequence = prerendered(sequence, Path(folder), len(show), show.rendered)
+        return _replay(sequence, config, realtime, max_frames, show, make_tracker)
+
+
+def _replay(sequence: object, config: Config, realtime: bool, max_frames: int | None,
+            show: Progress, make_tracker: Callable | None) -> ReplayRun:
+    fusion = config.fusion.enabled
     frames = FirstFrames(sequence, max_frames)
     flight = (vehicle_trajectory(sequence.groundtruth, config,
                                  sequence.extras.get("T_ned_world"))
@@ -183,7 +197,6 @@ def run_replay(sequence: object, config: Config, realtime: bool,
                               autopilot.frame_released)
         make_tracker = make_tracker or tracker_factory(config,
                                                        camera_model(config.camera, source))
-        show = Progress(len(frames), progress)
         show.note(f"replay {sequence.name}: warming up the tracker (the first run after an "
                   "install compiles its kernels: about a minute)")
         warmup_s = warm_up(make_tracker, frames)

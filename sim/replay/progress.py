@@ -17,6 +17,14 @@ class Progress:
         self._last_decile = -1
         self._start: float | None = None
 
+    def __len__(self) -> int:
+        return self.total
+
+    def rendered(self, done: int) -> None:
+        """Frames rendered before the replay (a line per 10 %)."""
+        if self.enabled and (done == self.total or done % max(self.total // 10, 1) == 0):
+            print(f"  rendered {done}/{self.total} frames", file=sys.stderr, flush=True)
+
     def note(self, text: str) -> None:
         """One line of its own."""
         if self.enabled:
