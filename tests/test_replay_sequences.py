@@ -63,3 +63,14 @@ def test_text_report_and_bad_input(data_dir, tmp_path, capsys):
     assert main(["replay", seq, "--max-frames", "0"]) == 2
     assert "--max-frames" in capsys.readouterr().err
     assert main(["replay", str(tmp_path / "missing")]) == 2
+
+
+def test_synthetic_take_off_replay_with_pass_through(tmp_path, capsys):
+    # rendered on the fly (fast mode); --estimator pass-through scores the tracker's map
+    r = replay_json(capsys, "hover-down", "--fast", "--estimator", "pass-through",
+                    "--max-frames", "150", "--out", str(tmp_path))
+    assert r["sequence"] == "hover-down" and r["estimator"] == "pass-through"
+    assert r["frames"] == 150 and r["dropped"] == 0
+    assert r["tracked_fraction"] >= 0.75 and r["resets"] == 0
+    assert r["messages_received"] >= 0.9 * r["tracked"]
+    assert r["ate_rmse_m"] < 0.4  # a 2.5 m climb with a slow wander; measured 0.15 m
