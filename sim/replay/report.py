@@ -262,4 +262,12 @@ def format_report(r: dict) -> str:
         f"compute    tracking median {_num(r['tracking_ms_median'], '.1f')} ms (p95 "
         f"{_num(r['tracking_ms_p95'], '.1f')}), CPU {_num(r['cpu_ms_per_frame'], '.1f')} ms per "
         f"frame, peak RSS {r['peak_rss_mb']:.0f} MB",
+        *_files_line(r),
     ])
+
+
+def _files_line(r: dict) -> list[str]:
+    if r["groundtruth_file"] is None:
+        return [f"received   {r['received_file']}"] if r["received_file"] else []
+    align = " --align none" if r["align"] == "start" else ""
+    return [f"files      sdvl eval {r['groundtruth_file']} {r['received_file']}{align}"]
