@@ -46,6 +46,20 @@ class TrackerConfig:
     lost_after_bad: int = 3
     reinit_when_lost: bool = True
 
+    # relocalisation (6.9): while lost, keyframes are tried newest first (direct alignment,
+    # then point matching); one is accepted with this many inlier matches
+    relocalize: bool = True
+    reloc_min_matches: int = 20
+    # direct alignment to a keyframe must explain the patches this well before matching
+    # (zero-mean residual over patch energy: 0 perfect, ~1 blank image, ~2 unrelated texture)
+    reloc_max_residual_ratio: float = 0.5
+    # pyramid level at which the image shift to a keyframe is found (phase correlation)
+    reloc_shift_level: int = 2
+    # keyframes tried per lost frame (the newest ones; 0 = all)
+    reloc_max_keyframes: int = 0
+    # re-initialise a new map (if reinit_when_lost) after this many frames lost (0 = never)
+    reinit_after_lost_frames: int = 0
+
     # keyframes and mapping (6.6)
     kf_min_frames: int = 30
     kf_points_ratio: float = 0.9

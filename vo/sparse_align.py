@@ -116,3 +116,46 @@ def align(params: np.ndarray, ref_pyr, cur_pyr, px_ref: np.ndarray, xyz_ref: np.
                            cur_pyr.heights[level], level, patches, jac, valid, xyz_ref, T,
                            iterations)
     return T
+
+
+@numba.njit(cache=True, nogil=True)
+def _residual_ratio(params, flat, off, w, h, level, patches, valid, xyz, T_cur_ref):
+    """Zero-mean residual energy of the patches over their own zero-mean energy (per patch
+    mean removed, so a brightness change costs nothing); inf when no patch is visible."""
+    err = 0.0
+    energy = 0.0
+    for i in range(patches.shape[0]):
+        if not valid[i]:
+            continue
+        X, Y, Z = transform(T_cur_ref, xyz[i, 0], xyz[i, 1], xyz[i, 2])
+        u, v = project_point(params, X, Y, Z)
+        if np.isnan(u):
+            continue
+        u = to_level(u, level)
+        v = to_level(v, level)
+        if not inside(u, v, w, h, HALF4 + 1):
+            continue
+        res = np.empty(N4)
+        k = 0
+        for r in range(-HALF4, HALF4):
+            for c in range(-HALF4, HALF4):
+                res[k] = sample(flat, off, w, u + c, v + r) - patches[i, k]
+                k += 1
+        ref_mean = patches[i].mean()
+        res_mean = res.mean()
+        for k in range(N4):
+            err += (res[k] - res_mean) ** 2
+            energy += (patches[i, k] - ref_mean) ** 2
+    return err / energy if energy > 0.0 else np.inf
+
+
+def residual_ratio(params: np.ndarray, ref_pyr, cur_pyr, px_ref: np.ndarray,
+                   xyz_ref: np.ndarray, T_cur_ref: np.ndarray, level: int) -> float:
+    """How badly the reference patches fit the current image at T_cur_ref (at `level`): 0 for
+    a perfect fit, about 1 against a blank image, about 2 against unrelated texture."""
+    off, w, h = ref_pyr.offsets[level], ref_pyr.widths[level], ref_pyr.heights[level]
+    patches, _, valid = reference_patches(ref_pyr.flat, off, w, h, level, px_ref, xyz_ref,
+                                          float(params[1]), float(params[2]))
+    return _residual_ratio(params, cur_pyr.flat, cur_pyr.offsets[level], cur_pyr.widths[level],
+                           cur_pyr.heights[level], level, patches, valid, xyz_ref,
+                           np.ascontiguousarray(T_cur_ref, dtype=np.float64))

@@ -10,7 +10,9 @@ from __future__ import annotations
 import queue
 import threading
 import time
+from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from calib.camera import CameraModel
@@ -27,7 +29,7 @@ from vo.pose_optimizer import depth_whitening, optimize_pose, pose_covariance
 from vo.quality import LostCounter, classify
 from vo.reprojector import Reprojector
 from vo.result import FrameResult
-from vo.se3 import inv_se3, orthonormalized
+from vo.se3 import exp_se3, inv_se3, orthonormalized
 
 MIN_POSE_MATCHES = 6
 
@@ -60,6 +62,8 @@ class Tracker:
         self.last: Frame | None = None
         self.motion = np.eye(4)
         self.lost = LostCounter(cfg)
+        self.is_lost = False
+        self.lost_frames = 0
         self.frames_since_kf = 0
         self.kf_visible = 0
         if self.threaded:
@@ -121,6 +125,9 @@ class Tracker:
         timings["pyramid"] = _ms(t0)
         if self.last is None:
             result, keyframe = self._initialize(frame, timings)
+        elif self.is_lost:
+            with self.map.lock:
+                result, keyframe = self._relocalize(frame, timings), False
         else:
             with self.map.lock:
                 result, keyframe = self._track(frame, timings)
@@ -191,6 +198,31 @@ class Tracker:
         t0 = time.perf_counter()
         self._align(frame, last)
         timings["align"] = _ms(t0)
+        m = self._match(frame, timings)
+        quality = self._quality(m)
+        result = FrameResult(frame.t, None, quality, n_matches=len(m.ids),
+                             n_attempts=m.n_attempts, n_inliers=int(m.inlier.sum()))
+        if quality == "bad":
+            if self.lost.update(quality):
+                result.quality = "lost"
+            return result, False
+        self.lost.update(quality)
+        self._accept(frame, m)
+        self.motion = frame.T_c_w @ inv_se3(last.T_c_w)
+        self.last = frame
+        self.frames_since_kf += 1
+        n_seen = int(m.inlier.sum()) if cfg.kf_count_inliers else m.n_visible
+        keyframe = quality == "good" and self._need_keyframe(n_seen)
+        if keyframe:
+            self.frames_since_kf = 0
+            self.kf_visible = n_seen
+        result.T_w_c = frame.T_w_c
+        result.covariance = pose_covariance(m.H, m.sigma, result.T_w_c)
+        return result, keyframe
+
+    def _match(self, frame: Frame, timings: dict[str, float]) -> _Matches:
+        """Map points matched in frame (pose prior set) and the pose refined from them."""
+        cfg = self.config
         if cfg.track_candidates or cfg.track_search_fallback:
             t0 = time.perf_counter()
             frame.corners(cfg.fast_threshold, cfg.track_search_min_level)  # epipolar searches
@@ -198,46 +230,37 @@ class Tracker:
         t0 = time.perf_counter()
         ids, uv, levels, n_visible, n_attempts, attempted = self._reproject(frame)
         timings["reproject"] = _ms(t0)
-        n_matches = len(ids)
-        inlier = np.zeros(n_matches, dtype=bool)
-        if n_matches >= MIN_POSE_MATCHES:
+        m = _Matches(ids, uv, levels, n_visible, n_attempts, attempted,
+                     np.zeros(len(ids), dtype=bool), frame.T_c_w, None, 0.0)
+        if len(ids) >= MIN_POSE_MATCHES:
             t0 = time.perf_counter()
-            T, H, sigma, err = self._optimize(frame, ids, uv, levels)
-            inlier = err * np.sqrt(self.camera.fx * self.camera.fy) < cfg.reprojection_inlier_px
+            m.T, m.H, m.sigma, err = self._optimize(frame, ids, uv, levels)
+            m.inlier = err * np.sqrt(self.camera.fx * self.camera.fy) < cfg.reprojection_inlier_px
             timings["pose"] = _ms(t0)
-        # a match counts once it survives the pose refinement
-        quality = classify(int(inlier.sum()), n_attempts, cfg)
-        if inlier.sum() < MIN_POSE_MATCHES:
-            quality = "bad"
-        result = FrameResult(frame.t, None, quality, n_matches=n_matches, n_attempts=n_attempts,
-                             n_inliers=int(inlier.sum()))
-        if quality == "bad":
-            if self.lost.update(quality):
-                result.quality = "lost"
-            return result, False
-        self.lost.update(quality)
-        frame.T_c_w = orthonormalized(T)
-        frame.set_features(ids[inlier], uv[inlier], levels[inlier])
-        frame.n_visible = n_visible
+        return m
+
+    def _quality(self, m: _Matches) -> str:
+        """Quality of 6.10; a match counts once it survives the pose refinement."""
+        n_inliers = int(m.inlier.sum())
+        if n_inliers < MIN_POSE_MATCHES:
+            return "bad"
+        return classify(n_inliers, m.n_attempts, self.config)
+
+    def _accept(self, frame: Frame, m: _Matches) -> None:
+        """Give frame its refined pose and matches; update the points' found/missed counts."""
+        cfg = self.config
+        ids, inlier = m.ids, m.inlier
+        frame.T_c_w = orthonormalized(m.T)
+        frame.set_features(ids[inlier], m.uv[inlier], m.levels[inlier])
+        frame.n_visible = m.n_visible
         pts = self.map.points
         pts.n_found[ids[inlier]] += 1
-        missed = np.setdiff1d(attempted, ids)
+        missed = np.setdiff1d(m.attempted, ids)
         pts.n_missed[missed] += 1
         # points that keep failing (occluded, badly placed, moving) leave the map
         hopeless = (pts.n_missed[missed] > cfg.point_max_missed) & (
             pts.n_missed[missed] > 2 * pts.n_found[missed])
         pts.delete(missed[hopeless])
-        self.motion = frame.T_c_w @ inv_se3(last.T_c_w)
-        self.last = frame
-        self.frames_since_kf += 1
-        n_seen = int(inlier.sum()) if cfg.kf_count_inliers else n_visible
-        keyframe = quality == "good" and self._need_keyframe(n_seen)
-        if keyframe:
-            self.frames_since_kf = 0
-            self.kf_visible = n_seen
-        result.T_w_c = frame.T_w_c
-        result.covariance = pose_covariance(H, sigma, result.T_w_c)
-        return result, keyframe
 
     def _need_keyframe(self, n_seen: int) -> bool:
         """Keyframe policy of 6.6: enough frames and points lost, or too many points lost."""
@@ -250,19 +273,72 @@ class Tracker:
             n_seen < cfg.kf_points_ratio * self.kf_visible or n_seen < cfg.kf_min_points)
 
     def _on_lost(self) -> None:
-        """Lost after consecutive bad frames: the seam for relocalisation (6.9); for now a new
-        map is initialised when the config allows it."""
-        if self.config.reinit_when_lost:
+        """A lost frame: start relocalising (6.9) against the map, or initialise a new map
+        when relocalisation is off or has failed for too long (and the config allows it)."""
+        cfg = self.config
+        patient = cfg.reinit_after_lost_frames <= 0 or (
+            self.lost_frames < cfg.reinit_after_lost_frames)
+        if cfg.relocalize and self.map.keyframes and patient:
+            self.is_lost = True
+            self.lost_frames += 1
+        elif cfg.reinit_when_lost:
             self._reset()
 
+    def _relocalize(self, frame: Frame, timings: dict[str, float]) -> FrameResult:
+        """Try the keyframes newest first: direct alignment to the keyframe, then matching map
+        points; the first with enough inliers gives the pose and tracking resumes from it."""
+        cfg = self.config
+        t0 = time.perf_counter()
+        slots = sorted(self.map.keyframes, key=lambda s: -self.map.keyframes[s].id)
+        if cfg.reloc_max_keyframes > 0:
+            slots = slots[:cfg.reloc_max_keyframes]
+        for slot in slots:
+            kf = self.map.keyframes[slot]
+            if not self._align_to_keyframe(frame, kf) < cfg.reloc_max_residual_ratio:
+                continue
+            m = self._match(frame, {})
+            if m.inlier.sum() >= cfg.reloc_min_matches and self._quality(m) != "bad":
+                break
+        else:
+            timings["relocalize"] = _ms(t0)
+            return FrameResult(frame.t, None, "lost")
+        timings["relocalize"] = _ms(t0)
+        self._accept(frame, m)
+        self.is_lost = False
+        self.lost_frames = 0
+        self.lost = LostCounter(cfg)
+        self.motion = np.eye(4)
+        self.last = frame
+        T_w_c = frame.T_w_c
+        return FrameResult(frame.t, T_w_c, self._quality(m), pose_covariance(m.H, m.sigma, T_w_c),
+                           len(m.ids), m.n_attempts, int(m.inlier.sum()), new_segment=True)
+
+    def _align_to_keyframe(self, frame: Frame, kf: Frame) -> float:
+        """Frame's pose by direct alignment to keyframe kf from the best of the shifted
+        priors; returns the residual ratio of that alignment."""
+        pts = self.map.points
+        X = pts.pos_w[kf.feat_point] @ kf.T_c_w[:3, :3].T + kf.T_c_w[:3, 3]
+        depth = float(np.median(X[:, 2])) if len(X) else 1.0
+        best, best_T = np.inf, kf.T_c_w
+        for prior in shifted_priors(kf, frame, self.camera, self.config.reloc_shift_level,
+                                    depth):
+            frame.T_c_w = prior
+            ratio = self._align(frame, kf, measure=True)
+            if ratio < best:
+                best, best_T = ratio, frame.T_c_w
+        frame.T_c_w = best_T
+        return best
+
     # ------------------------------------------------------------------ stages
-    def _align(self, frame: Frame, last: Frame) -> None:
-        """Sparse image alignment of frame to the last frame (its matched points)."""
+    def _align(self, frame: Frame, last: Frame, measure: bool = False) -> float:
+        """Sparse image alignment of frame to the last frame (its matched points); with
+        `measure`, returns how badly the patches fit afterwards (sparse_align.residual_ratio,
+        at the finest level aligned; inf when alignment was impossible)."""
         pts = self.map.points
         alive = (pts.status[last.feat_point] == CANDIDATE) | (
             pts.status[last.feat_point] == CONVERGED)
         if alive.sum() < MIN_POSE_MATCHES:
-            return
+            return np.inf
         ids, px = last.feat_point[alive], last.feat_px[alive]
         X = pts.pos_w[ids] @ last.T_c_w[:3, :3].T + last.T_c_w[:3, 3]
         depth = np.linalg.norm(X, axis=1)
@@ -273,6 +349,10 @@ class Tracker:
                                         T_cur_last, cfg.align_max_level, cfg.align_min_level,
                                         cfg.align_iterations)
         frame.T_c_w = T_cur_last @ last.T_c_w
+        if not measure:
+            return np.nan
+        return sparse_align.residual_ratio(self.camera.params, last.pyr, frame.pyr, px, xyz,
+                                           T_cur_last, cfg.align_min_level)
 
     def _reproject(self, frame: Frame):
         cfg = self.config
@@ -296,6 +376,40 @@ class Tracker:
         return optimize_pose(np.ascontiguousarray(pts.pos_w[ids]), obs,
                              np.ascontiguousarray(levels, dtype=np.int64), whiten, frame.T_c_w,
                              self.config.pose_iterations, 0.5 / focal)
+
+
+def shifted_priors(kf: Frame, frame: Frame, camera: CameraModel, level: int,
+                   depth: float) -> list[np.ndarray]:
+    """T_c_w priors for frame from the keyframe's pose and the image shift that phase
+    correlation finds between the two images at pyramid `level` (the view may be far outside
+    the basin of direct alignment): the keyframe turned, and the keyframe moved sideways
+    (scene at `depth`), so that its image moves by that shift."""
+    a = np.float32(kf.pyr.images[level])
+    b = np.float32(frame.pyr.images[level])
+    (du, dv), _ = cv2.phaseCorrelate(a - a.mean(), b - b.mean())
+    du, dv = du * 2.0 ** level, dv * 2.0 ** level
+    # content moves by +du when the camera turns by du / f about its y axis, or moves by
+    # -du * depth / f along its x axis
+    turn = np.array([0.0, 0.0, 0.0, -np.arctan(dv / camera.fy), np.arctan(du / camera.fx), 0.0])
+    move = np.eye(4)
+    move[:3, 3] = (du * depth / camera.fx, dv * depth / camera.fy, 0.0)
+    return [exp_se3(turn) @ kf.T_c_w, move @ kf.T_c_w]
+
+
+@dataclass
+class _Matches:
+    """One frame's matched map points and the pose refined from them."""
+
+    ids: np.ndarray
+    uv: np.ndarray
+    levels: np.ndarray
+    n_visible: int
+    n_attempts: int
+    attempted: np.ndarray
+    inlier: np.ndarray
+    T: np.ndarray
+    H: np.ndarray | None
+    sigma: float
 
 
 def _ms(t0: float) -> float:
