@@ -174,9 +174,11 @@ def nearest_quads(rays, R, c, geom, bounds):
 
 @numba.njit(cache=True, nogil=True)
 def shade(rays, pixel_angle, R, c, geom, tex, gain, hit, pixels, levels, n_levels,
-          background):
+          background, detail):
     """Grey image (float32, 0..255 before effects): each pixel's quad, sampled at the mip level
-    of the pixel's footprint on it."""
+    of the pixel's footprint on it. Where a texture is magnified (closer than one texel per
+    pixel) the `detail` texture (id, frequency factor, amplitude; amplitude 0 = none) adds
+    finer structure, fading in over one mip level."""
     h, w = rays.shape[0], rays.shape[1]
     image = np.full((h, w), background, np.float32)
     for r in range(h):
@@ -194,7 +196,13 @@ def shade(rays, pixel_angle, R, c, geom, tex, gain, hit, pixels, levels, n_level
             lod = math.log2(max(footprint / texel, 1e-9))
             u = a / texel + geom[q, 12]
             v = b / texel + geom[q, 13]
-            image[r, col] = gain[q] * sample_texture(pixels, levels, n_levels, tex[q], u, v, lod)
+            value = sample_texture(pixels, levels, n_levels, tex[q], u, v, lod)
+            if lod < 0.0 and detail[2] > 0.0:
+                k = detail[1]
+                fine = sample_texture(pixels, levels, n_levels, int(detail[0]), u * k, v * k,
+                                      lod + math.log2(k))
+                value += min(-lod, 1.0) * detail[2] * (fine - 128.0)
+            image[r, col] = gain[q] * value
     return image
 
 
@@ -221,5 +229,6 @@ def render(scene: Scene, camera: CameraModel, T_w_c: np.ndarray,
     depth, hit = nearest_quads(rays, R, c, quads.geometry, bounds)
     atlas = scene.atlas
     image = shade(rays, pixel_angle, R, c, quads.geometry, quads.texture, quads.gain, hit,
-                  atlas.pixels, atlas.levels, atlas.n_levels, float(scene.background))
+                  atlas.pixels, atlas.levels, atlas.n_levels, float(scene.background),
+                  np.asarray(scene.detail or (0.0, 1.0, 0.0), dtype=np.float64))
     return image, depth

@@ -130,12 +130,14 @@ class Walker:
 @dataclass
 class Scene:
     """Static quads, moving objects and the textures they use; `background` is the grey level
-    of rays that hit nothing."""
+    of rays that hit nothing; `detail` (texture, frequency factor, amplitude) adds fine
+    structure to surfaces seen closer than one texel per pixel."""
 
     quads: QuadList
     atlas: TextureAtlas
     movers: list = field(default_factory=list)
     background: float = 128.0
+    detail: tuple[int, float, float] | None = None
     height_at: Callable | None = None
 
     def quads_at(self, t: float) -> QuadList:

@@ -48,7 +48,8 @@ def outdoor_scene(seed: int, source: str | None, clear_radius: float = 4.0,
             continue
         size = (rng.uniform(2, 8), rng.uniform(2, 8), rng.uniform(0.5, 3.0))
         add_box(quads, center, size, rng.uniform(0, np.pi), DETAIL, 0.008, rng)
-    return Scene(quads, build_atlas(texture_images(seed, source)), background=150.0)
+    return Scene(quads, build_atlas(texture_images(seed, source)), background=150.0,
+                 detail=(DETAIL, 8.0, 0.4))
 
 
 def room_scene(seed: int, source: str | None, size=(10.0, 7.0), height: float = 3.0) -> Scene:
@@ -64,4 +65,5 @@ def room_scene(seed: int, source: str | None, size=(10.0, 7.0), height: float = 
     for wall_x in (-sx / 2 + 0.01, sx / 2 - 0.01):  # posters
         quads.add([wall_x, -1.0, -0.8], [0, 1, 0], [0, 0, -1], 2.0, 1.4,
                   PHOTO0 + 3, 0.003, (0.0, 0.0))
-    return Scene(quads, build_atlas(texture_images(seed, source)), background=150.0)
+    return Scene(quads, build_atlas(texture_images(seed, source)), background=150.0,
+                 detail=(DETAIL, 8.0, 0.3))
