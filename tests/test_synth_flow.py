@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 
 from sim.synth.flight import synthetic_sequence
 
@@ -29,8 +30,13 @@ def predicted_flow_errors(seq, i: int) -> np.ndarray:
     return np.linalg.norm(tracked[ok] - predicted[ok], axis=1)
 
 
-def test_lk_flow_matches_ground_truth_flow_on_survey_down():
-    seq = synthetic_sequence("survey-down", size=(320, 240), textures="procedural")
-    errors = np.concatenate([predicted_flow_errors(seq, i) for i in (150, 400, 700)])
+@pytest.mark.parametrize(("preset", "frames"), [
+    ("survey-down", (150, 400, 700)),
+    ("hover-down", (30, 250, 400)),  # climbing, then turning
+    ("room-handheld", (50, 300, 500)),  # forward-looking, distorted camera
+])
+def test_lk_flow_matches_ground_truth_flow(preset, frames):
+    seq = synthetic_sequence(preset, size=(320, 240), textures="procedural")
+    errors = np.concatenate([predicted_flow_errors(seq, i) for i in frames])
     assert errors.size > 300
     assert np.median(errors) < 0.3, f"median {np.median(errors):.3f} px"
