@@ -20,7 +20,7 @@ import numpy as np
 from calib.errors import InputError
 from daemon.camera import SequenceSource
 from daemon.config import Config, replace
-from daemon.run_command import camera_model, tracker_factory
+from daemon.run_command import tracker_factory
 from daemon.service import Service
 from sim.autopilot import SimOptions
 from sim.replay.autopilot_process import AutopilotProcess, VisionMessage
@@ -133,7 +133,7 @@ def choose_estimator(config: Config, sequence: object, estimator: str) -> Config
     return replace(config, fusion={"enabled": fusion})
 
 
-def warm_up(make_tracker: Callable, sequence: FirstFrames) -> float:
+def warm_up(make_tracker: Callable, sequence: object) -> float:
     """Run a throwaway tracker over the first frames so compiled kernels are loaded before the
     clock starts (a drone's service is up before it flies); returns the seconds it took."""
     from daemon.frames import Frame
@@ -141,7 +141,7 @@ def warm_up(make_tracker: Callable, sequence: FirstFrames) -> float:
     start = time.perf_counter()
     tracker = None
     try:
-        for i, (t, image) in enumerate(sequence.sequence.frames(WARMUP_FRAMES)):
+        for i, (t, image) in enumerate(sequence.frames(WARMUP_FRAMES)):
             frame = Frame(i, t, time.monotonic(), image)
             tracker = tracker or make_tracker(frame)
             tracker.process(image, t)
@@ -167,22 +167,29 @@ def run_replay(sequence: object, config: Config, realtime: bool,
                make_tracker: Callable | None = None) -> ReplayRun:
     """Play `sequence` through the service (its estimator as `config.fusion.enabled` says)
     against the simulated autopilot; `make_tracker(frame)` replaces the SDVL tracker (tests)."""
-    config = drone_config(config, sequence)
-    fusion = config.fusion.enabled
-    if fusion and not realtime:
+    config = replace(drone_config(config, sequence),
+                     camera={"source": "testpattern", "calibration": ""})
+    if config.fusion.enabled and not realtime:
         raise InputError("fusion needs --realtime: the autopilot's IMU runs on the wall clock")
+    make_tracker = make_tracker or tracker_factory(config, sequence.camera)
+    show = Progress(len(FirstFrames(sequence, max_frames)), progress)
+    show.note(f"replay {sequence.name}: warming up the tracker (the first run after an install "
+              "compiles its kernels: about a minute)")
     with tempfile.TemporaryDirectory(prefix="sdvl-replay-") as folder:
-        show = Progress(len(FirstFrames(sequence, max_frames)), progress)
         if realtime and renders_on_the_fly(sequence):
             show.note(f"replay {sequence.name}: rendering the frames first")
-            sequence = prerendered(sequence, Path(folder), len(show), show.rendered)
-        return _replay(sequence, config, realtime, max_frames, show, make_tracker)
+            warm_sequence = sequence
+            sequence, warmup_s = prerendered(
+                sequence, Path(folder), len(show), show.rendered,
+                alongside=lambda: warm_up(make_tracker, warm_sequence))
+        else:
+            warmup_s = warm_up(make_tracker, sequence)
+        return _replay(sequence, config, realtime, FirstFrames(sequence, max_frames), show,
+                       make_tracker, warmup_s)
 
 
-def _replay(sequence: object, config: Config, realtime: bool, max_frames: int | None,
-            show: Progress, make_tracker: Callable | None) -> ReplayRun:
-    fusion = config.fusion.enabled
-    frames = FirstFrames(sequence, max_frames)
+def _replay(sequence: object, config: Config, realtime: bool, frames: FirstFrames,
+            show: Progress, make_tracker: Callable, warmup_s: float) -> ReplayRun:
     flight = (vehicle_trajectory(sequence.groundtruth, config,
                                  sequence.extras.get("T_ned_world"))
               if sequence.groundtruth is not None else None)
@@ -191,15 +198,9 @@ def _replay(sequence: object, config: Config, realtime: bool, max_frames: int | 
                                  body_imu(sequence))
     received: list[VisionMessage] = []
     try:
-        config = replace(config, mavlink={"link": autopilot.url},
-                         camera={"source": "testpattern", "calibration": ""})
+        config = replace(config, mavlink={"link": autopilot.url})
         source = ReplaySource(frames, realtime, 1.0 / config.mavlink.max_rate_hz,
                               autopilot.frame_released)
-        make_tracker = make_tracker or tracker_factory(config,
-                                                       camera_model(config.camera, source))
-        show.note(f"replay {sequence.name}: warming up the tracker (the first run after an "
-                  "install compiles its kernels: about a minute)")
-        warmup_s = warm_up(make_tracker, frames)
         recorder = Recorder()
         service = Service(config, source, make_tracker, on_tracked=recorder)
         cpu0, wall0 = time.process_time(), time.perf_counter()
@@ -210,10 +211,10 @@ def _replay(sequence: object, config: Config, realtime: bool, max_frames: int | 
         received = autopilot.finish()
     stats = service.stats
     return ReplayRun(
-        name=sequence.name, realtime=realtime, fusion=fusion, offered=source.offered,
-        rows=recorder.rows, received=received, flight=flight, wall_s=wall_s, cpu_s=cpu_s,
-        warmup_s=warmup_s, peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-        exit_code=code,
+        name=sequence.name, realtime=realtime, fusion=config.fusion.enabled,
+        offered=source.offered, rows=recorder.rows, received=received, flight=flight,
+        wall_s=wall_s, cpu_s=cpu_s, warmup_s=warmup_s,
+        peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, exit_code=code,
         stats={"sent": stats.sent, "skipped_rate": stats.skipped_rate,
                "skipped_stale": stats.skipped_stale,
                "skipped_duplicate": stats.skipped_duplicate})

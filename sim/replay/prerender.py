@@ -1,19 +1,24 @@
 """Frames rendered before a real-time replay starts: a synthetic flight renders each frame on
 the fly (tens of milliseconds a frame), which a real camera does not do on the companion's CPU,
 so in real time the renderer would fall behind the flight's own clock. The frames are rendered
-by all cores into a temporary folder first and read back like a recorded sequence's."""
+by worker processes on all cores into a temporary folder first (while the caller's own work,
+e.g. the tracker's warm-up, runs alongside) and read back like a recorded sequence's."""
 
 from __future__ import annotations
 
 import dataclasses
 import multiprocessing
 import os
+import threading
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 import cv2
 
 from sim.sequence import Sequence, load_grey
 
+T = TypeVar("T")
 _RENDER: dict = {}  # the sequence and folder the forked workers render from
 
 
@@ -28,18 +33,28 @@ def _render(i: int) -> int:
     return i
 
 
-def prerendered(sequence: Sequence, folder: Path, frames: int,
-                on_frame=lambda done: None) -> Sequence:
+def prerendered(sequence: Sequence, folder: Path, frames: int, on_frame: Callable[[int], None],
+                alongside: Callable[[], T]) -> tuple[Sequence, T]:
     """The sequence with its first `frames` frames rendered into `folder` (PNG) and loaded from
-    there; `on_frame(done)` after each."""
+    there, and what `alongside()` returned, run in a thread meanwhile; `on_frame(done)` after
+    each frame."""
     _RENDER.update(sequence=sequence, folder=folder)
     sequence.image_loader(0)  # compile the renderer once, before the workers fork
     workers = max(1, min(os.cpu_count() or 1, 4))
+    result: list = []
     try:
+        # the workers fork before the thread starts: no lock of the thread's is copied
         with multiprocessing.get_context("fork").Pool(workers) as pool:
+            thread = threading.Thread(target=lambda: result.append(alongside()),
+                                      name="alongside-rendering")
+            thread.start()
             for done, _ in enumerate(pool.imap_unordered(_render, range(frames), chunksize=4)):
                 on_frame(done + 1)
+            thread.join()
     finally:
         _RENDER.clear()
-    return dataclasses.replace(sequence,
-                               image_loader=lambda i: load_grey(folder / f"{i:06d}.png"))
+    if not result:
+        raise RuntimeError("the work alongside rendering failed (see the traceback above)")
+    rendered = dataclasses.replace(
+        sequence, image_loader=lambda i: load_grey(folder / f"{i:06d}.png"))
+    return rendered, result[0]
