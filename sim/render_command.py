@@ -1,5 +1,5 @@
 """`sdvl render PRESET --out DIR`: write a synthetic flight in the shared-data layout
-(frames.txt, images/, camera.yaml, groundtruth.txt) plus imu.csv and sensors.csv."""
+(frames.txt, images/, camera.yaml, groundtruth.txt) plus imu.csv, sensors.csv and rig.yaml."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import cv2
 
 from calib.camera_yaml import save_camera
 from calib.errors import InputError
-from sim.datasets.layout import write_imu_csv, write_sensors_csv
+from sim.datasets.layout import write_imu_csv, write_rig_yaml, write_sensors_csv
 from sim.synth.flight import synthetic_sequence
 from sim.synth.presets import PRESETS
 from sim.trajectory import write_tum
@@ -51,6 +51,7 @@ def run(args: argparse.Namespace) -> int:
     write_tum(seq.groundtruth, out / "groundtruth.txt")
     write_imu_csv(seq.imu, out / "imu.csv")
     write_sensors_csv(seq.extras["sensors"], out / "sensors.csv")
+    write_rig_yaml(seq.extras["world"], seq.extras["T_b_c"], out / "rig.yaml")
     lines, start = [], time.monotonic()
     for i, (t, image) in enumerate(seq.frames()):
         name = f"images/{i:06d}.png"

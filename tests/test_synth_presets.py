@@ -31,6 +31,8 @@ def test_rendered_preset_loads_through_open_sequence(preset, tmp_path):
     sensors = seq.extras["sensors"]
     np.testing.assert_allclose(sensors.baro_alt, memory.extras["sensors"].baro_alt, atol=1e-8)
     assert sensors.range_valid.all() and frames[0][1].std() > 10
+    assert seq.extras["world"] == "NED"
+    np.testing.assert_allclose(seq.extras["T_b_c"], memory.extras["T_b_c"])
 
 
 def test_preset_name_opens_in_memory():

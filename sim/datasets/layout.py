@@ -1,5 +1,6 @@
 """The sequence layout of `../shared/data` and of `sdvl render`: frames.txt, camera.yaml,
-groundtruth.txt, and optionally imu.csv and sensors.csv."""
+groundtruth.txt, and optionally imu.csv, sensors.csv and rig.yaml (the ground truth's world
+frame, e.g. `world: NED`, and the camera mounting `T_b_c`, a 4x4 list)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from calib.camera import CameraModel
 from calib.camera_yaml import load_camera
@@ -78,6 +80,24 @@ def write_sensors_csv(sensors: SensorSamples, path: Path) -> None:
                comments="# ")
 
 
+def read_rig_yaml(path: Path) -> dict:
+    """`world` and `T_b_c` (4x4 array) from a rig.yaml, as sequence extras."""
+    try:
+        data = yaml.safe_load(path.read_text())
+        out = {"world": str(data["world"])}
+        if "T_b_c" in data:
+            out["T_b_c"] = np.array(data["T_b_c"], dtype=np.float64).reshape(4, 4)
+    except (yaml.YAMLError, TypeError, KeyError, ValueError) as exc:
+        raise InputError(f"expected 'world: NAME' and 'T_b_c: 4x4 list' ({exc})", path) from None
+    return out
+
+
+def write_rig_yaml(world: str, T_b_c: np.ndarray, path: Path) -> None:
+    """Write what `read_rig_yaml` reads."""
+    rows = [[float(v) for v in row] for row in np.asarray(T_b_c)]
+    path.write_text(yaml.safe_dump({"world": world, "T_b_c": rows}, default_flow_style=None))
+
+
 def read_layout(path: Path, camera: CameraModel | None = None) -> Sequence:
     """A sequence in the shared-data layout; `camera` overrides its camera.yaml."""
     times, files = read_frame_list(path / "frames.txt")
@@ -86,6 +106,8 @@ def read_layout(path: Path, camera: CameraModel | None = None) -> Sequence:
     extras = {"root": path}
     if (path / "sensors.csv").is_file():
         extras["sensors"] = read_sensors_csv(path / "sensors.csv")
+    if (path / "rig.yaml").is_file():
+        extras.update(read_rig_yaml(path / "rig.yaml"))
     return image_list_sequence(
         path.name, camera, times, files,
         groundtruth=read_tum(gt_path) if gt_path.is_file() else None,
