@@ -40,6 +40,15 @@ class TrackerConfig:
     reprojection_inlier_px: float = 2.0
     constant_velocity: bool = True
 
+    # outlier rejection (6.8): RANSAC over 5-point subsets of the matches, inliers within
+    # ransac_threshold_px (at the match's level), hypotheses for ransac_probability at most
+    # ransac_max_hypotheses; then outliers within ransac_rescue_px of the inlier pose rejoin
+    outlier_rejection: bool = False
+    ransac_threshold_px: float = 2.0
+    ransac_rescue_px: float = 4.0
+    ransac_probability: float = 0.99
+    ransac_max_hypotheses: int = 100
+
     # quality (6.10)
     quality_min_ratio: float = 0.2
     quality_min_matches: int = 20
@@ -58,7 +67,7 @@ class TrackerConfig:
     # keyframes tried per lost frame (the newest ones; 0 = all)
     reloc_max_keyframes: int = 0
     # re-initialise a new map (if reinit_when_lost) after this many frames lost (0 = never)
-    reinit_after_lost_frames: int = 0
+    reinit_after_lost_frames: int = 100
 
     # keyframes and mapping (6.6)
     kf_min_frames: int = 30

@@ -17,7 +17,7 @@ import numpy as np
 
 from calib.camera import CameraModel
 from calib.errors import InputError
-from vo import sparse_align
+from vo import outlier_rejection, sparse_align
 from vo.config import TrackerConfig
 from vo.depth_filter import converged
 from vo.frame import Frame
@@ -232,12 +232,50 @@ class Tracker:
         timings["reproject"] = _ms(t0)
         m = _Matches(ids, uv, levels, n_visible, n_attempts, attempted,
                      np.zeros(len(ids), dtype=bool), frame.T_c_w, None, 0.0)
-        if len(ids) >= MIN_POSE_MATCHES:
-            t0 = time.perf_counter()
-            m.T, m.H, m.sigma, err = self._optimize(frame, ids, uv, levels)
-            m.inlier = err * np.sqrt(self.camera.fx * self.camera.fy) < cfg.reprojection_inlier_px
-            timings["pose"] = _ms(t0)
+        if len(ids) < MIN_POSE_MATCHES:
+            return m
+        t0 = time.perf_counter()
+        focal = np.sqrt(self.camera.fx * self.camera.fy)
+        use = np.ones(len(ids), dtype=bool)
+        if cfg.outlier_rejection and len(ids) > outlier_rejection.SUBSET:
+            use = self._reject_outliers(frame, ids, uv, levels)
+            timings["ransac"] = _ms(t0)
+        if use.sum() >= MIN_POSE_MATCHES:
+            T, H, sigma, err = self._optimize(frame, ids[use], uv[use], levels[use])
+            if cfg.outlier_rejection:
+                # rescue: outliers within a wider threshold of the inlier pose join them
+                frame.T_c_w, prior = T, frame.T_c_w
+                use = self._errors(frame, ids, uv, levels) * focal < cfg.ransac_rescue_px
+                frame.T_c_w = prior
+                T, H, sigma, err = self._optimize(frame, ids[use], uv[use], levels[use])
+            m.T, m.H, m.sigma = T, H, sigma
+            m.inlier[use] = err * focal < cfg.reprojection_inlier_px
+        timings["pose"] = _ms(t0)
         return m
+
+    def _errors(self, frame: Frame, ids: np.ndarray, uv: np.ndarray,
+                levels: np.ndarray) -> np.ndarray:
+        """Level-scaled reprojection errors (normalised plane) of matches at frame's pose."""
+        f = self.camera.unproject(uv)
+        obs = np.ascontiguousarray(f[:, :2] / f[:, 2:])
+        scale = 1.0 / 2.0 ** levels
+        pos = np.ascontiguousarray(self.map.points.pos_w[ids])
+        return np.sqrt(outlier_rejection.squared_errors(pos, obs, scale, frame.T_c_w))
+
+    def _reject_outliers(self, frame: Frame, ids: np.ndarray, uv: np.ndarray,
+                         levels: np.ndarray) -> np.ndarray:
+        """RANSAC inliers (6.8) among the matches, hypotheses from frame's prior pose."""
+        cfg = self.config
+        f = self.camera.unproject(uv)
+        obs = np.ascontiguousarray(f[:, :2] / f[:, 2:])
+        scale = 1.0 / 2.0 ** levels
+        subsets = outlier_rejection.random_subsets(len(ids), cfg.ransac_max_hypotheses,
+                                                   cfg.seed + frame.id)
+        focal = np.sqrt(self.camera.fx * self.camera.fy)
+        inlier, _ = outlier_rejection.ransac(
+            np.ascontiguousarray(self.map.points.pos_w[ids]), obs, scale, frame.T_c_w, subsets,
+            cfg.ransac_threshold_px / focal, cfg.ransac_probability)
+        return inlier
 
     def _quality(self, m: _Matches) -> str:
         """Quality of 6.10; a match counts once it survives the pose refinement."""

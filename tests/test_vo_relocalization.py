@@ -1,0 +1,68 @@
+"""Relocalisation (thesis 6.9): after the view is covered the tracker reports no pose, and once
+the view returns over mapped ground it finds its place in the same map again."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_vo_tracker import N_SYNTH, _flight
+from vo_scenes import load_texture, render_plane, small_camera
+
+from sim.metrics import evaluate
+from sim.trajectory import Trajectory
+from vo.config import TrackerConfig
+from vo.tracker import Tracker
+
+COVERED = range(50, 70)  # frames replaced by dark noise
+
+
+@pytest.fixture(scope="module")
+def covered_flight(data_dir):
+    cam = small_camera()
+    tex = load_texture(data_dir)
+    rng = np.random.default_rng(3)
+    frames, T_w_c = [], []
+    for i in range(N_SYNTH):
+        T = _flight(i)
+        if i in COVERED:
+            image = rng.integers(0, 12, (cam.height, cam.width)).astype(np.uint8)
+        else:
+            image = render_plane(tex, cam, T)
+        frames.append((i / 30.0, image))
+        T_w_c.append(np.linalg.inv(T))
+    gt = Trajectory.from_matrices(np.array([f[0] for f in frames]), np.array(T_w_c))
+    return cam, frames, gt
+
+
+@pytest.mark.parametrize("threaded", [False, True])
+def test_relocalises_in_the_same_map_after_a_blackout(covered_flight, threaded):
+    cam, frames, gt = covered_flight
+    tracker = Tracker(cam, TrackerConfig(), threaded=threaded)
+    try:
+        results = [tracker.process(image, t) for t, image in frames]
+    finally:
+        tracker.close()
+    lost = [k for k, r in enumerate(results) if r.quality == "lost"]
+    assert lost and lost[0] in COVERED
+    assert all(not results[k].has_pose for k in lost)
+    back = COVERED.stop
+    recovered = next(k for k in range(back, len(results)) if results[k].has_pose)
+    assert recovered - back <= 10
+    assert results[recovered].new_segment
+    # one flag for the first map, one for the recovery
+    assert sum(r.new_segment for r in results) == 2
+    assert sum(r.has_pose for r in results[recovered:]) >= 0.9 * (len(results) - recovered)
+    # the same map before and after: one similarity aligns the whole flight
+    t = np.array([r.t for r in results if r.has_pose])
+    est = Trajectory.from_matrices(t, np.array([r.T_w_c for r in results if r.has_pose]))
+    ev = evaluate(gt, est, "sim3")
+    assert ev.ate_rmse_m < 0.01
+
+
+def test_without_relocalisation_a_new_map_starts(covered_flight):
+    cam, frames, _ = covered_flight
+    tracker = Tracker(cam, TrackerConfig(relocalize=False))
+    results = [tracker.process(image, t) for t, image in frames]
+    assert any(r.quality == "lost" for r in results)
+    assert sum(r.new_segment for r in results) == 2
+    assert any(r.quality == "initializing" for r in results[COVERED.start:])

@@ -1,0 +1,98 @@
+"""Outlier rejection (thesis 6.8): RANSAC over random 5-point subsets of a frame's matches, each
+hypothesis a Gauss-Newton update of the prior pose from its subset only; inliers by reprojection
+error; the number of hypotheses adapts to the best inlier ratio (p = 0.99, at most a cap).
+
+Errors are on the normalised image plane scaled down by each match's pyramid level (as in the
+pose optimiser), so thresholds are pixels at the match's level divided by the focal length.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from vo.se3 import exp_se3, plane_jacobian, transform
+
+SUBSET = 5
+HYPOTHESIS_ITERATIONS = 5
+
+
+@numba.njit(cache=True, nogil=True)
+def squared_errors(pos_w, obs, scale, T_c_w):
+    """Per match the squared, level-scaled reprojection error at T_c_w (inf behind the camera)."""
+    n = pos_w.shape[0]
+    out = np.empty(n)
+    for i in range(n):
+        X, Y, Z = transform(T_c_w, pos_w[i, 0], pos_w[i, 1], pos_w[i, 2])
+        if Z <= 1e-9:
+            out[i] = np.inf
+            continue
+        ex = (obs[i, 0] - X / Z) * scale[i]
+        ey = (obs[i, 1] - Y / Z) * scale[i]
+        out[i] = ex * ex + ey * ey
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def fit_subset(pos_w, obs, scale, subset, T_prior, iterations):
+    """T_prior updated by plain Gauss-Newton on the matches `subset` only."""
+    T = T_prior.copy()
+    J = np.zeros((2, 6))
+    for _ in range(iterations):
+        H = 1e-12 * np.eye(6)
+        b = np.zeros(6)
+        for i in subset:
+            X, Y, Z = transform(T, pos_w[i, 0], pos_w[i, 1], pos_w[i, 2])
+            if Z <= 1e-9:
+                continue
+            plane_jacobian(X, Y, Z, J)
+            s = scale[i]
+            ex = (obs[i, 0] - X / Z) * s
+            ey = (obs[i, 1] - Y / Z) * s
+            for a in range(6):
+                b[a] += s * (J[0, a] * ex + J[1, a] * ey)
+                for q in range(6):
+                    H[a, q] += s * s * (J[0, a] * J[0, q] + J[1, a] * J[1, q])
+        xi = np.linalg.solve(H, b)
+        T = exp_se3(xi) @ T
+        if np.sqrt(xi @ xi) < 1e-12:
+            break
+    return T
+
+
+@numba.njit(cache=True, nogil=True)
+def hypotheses_needed(n_inliers, n, p, cap):
+    """Eq. 6.12: hypotheses for probability p of one outlier-free subset, at most cap."""
+    w = (n_inliers / n) ** SUBSET
+    if w >= 1.0:
+        return 1
+    if w <= 0.0:
+        return cap
+    return min(cap, int(np.ceil(np.log(1.0 - p) / np.log(1.0 - w))))
+
+
+@numba.njit(cache=True, nogil=True)
+def ransac(pos_w, obs, scale, T_prior, subsets, threshold, p):
+    """Inlier mask of the best hypothesis over the rows of `subsets` (at most all of them,
+    fewer once eq. 6.12 is satisfied) and the number of hypotheses tried."""
+    n = pos_w.shape[0]
+    thr2 = threshold * threshold
+    best = np.zeros(n, dtype=np.bool_)
+    best_count = -1
+    needed = subsets.shape[0]
+    tried = 0
+    while tried < needed:
+        T = fit_subset(pos_w, obs, scale, subsets[tried], T_prior, HYPOTHESIS_ITERATIONS)
+        tried += 1
+        inlier = squared_errors(pos_w, obs, scale, T) < thr2
+        count = inlier.sum()
+        if count > best_count:
+            best, best_count = inlier, count
+            needed = hypotheses_needed(count, n, p, subsets.shape[0])
+    return best, tried
+
+
+def random_subsets(n: int, count: int, seed: int) -> np.ndarray:
+    """`count` rows of SUBSET distinct match indices in 0..n-1, from a seeded generator."""
+    rng = np.random.default_rng(seed)
+    return np.ascontiguousarray(rng.random((count, n)).argpartition(SUBSET, axis=1)[:, :SUBSET])
