@@ -17,6 +17,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from scipy.spatial.transform import Rotation
 
 from daemon.config import MavlinkConfig, MountingConfig
+from daemon.fusion.config import FusionConfig
 from daemon.mounting import body_from_camera
 from vo.result import FrameResult
 
@@ -315,6 +316,12 @@ def score(flight: Flight, estimates: list, start_s: float) -> Score:
     return Score(len(times), times[0], rms(np.array(pos_err)), truth.distance(times[0], times[-1]),
                  rms(np.array(head_err)[:, None]), rms(np.array(vel_err)), float(np.mean(nees)),
                  float(np.mean(nees_v)))
+
+
+def fusion_config(**changes: object) -> FusionConfig:
+    """The filter's defaults for this simulated tracker: it reports its true position noise, so
+    the factor the real tracker needs (vo_covariance_factor) stays 1."""
+    return FusionConfig(**{"vo_covariance_factor": 1.0, **changes})
 
 
 def link_config() -> MavlinkConfig:

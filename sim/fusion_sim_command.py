@@ -9,7 +9,6 @@ import json
 import numpy as np
 
 from daemon.config import MountingConfig
-from daemon.fusion.config import FusionConfig
 from daemon.fusion.estimator import FusionEstimator
 from sim import fusion_sim
 
@@ -32,7 +31,8 @@ def run(args: argparse.Namespace) -> int:
     flight = fusion_sim.simulate(fusion_sim.SENSOR_VARIANTS[args.sensors], tracker,
                                  seed=args.seed, truth=fusion_sim.survey_flight(legs=args.legs))
     texts: list[str] = []
-    estimator = FusionEstimator(FusionConfig(), MountingConfig(), fusion_sim.link_config(),
+    estimator = FusionEstimator(fusion_sim.fusion_config(), MountingConfig(),
+                                fusion_sim.link_config(),
                                 report=texts.append)
     timings: list[float] = []
     estimates = fusion_sim.run(flight, estimator, timings)

@@ -32,7 +32,7 @@ def fly(truth: fh.Truth, sensors: fh.SensorOptions, tracker: fh.TrackerOptions =
     mounting = mounting or MountingConfig()
     flight = fh.simulate(sensors, tracker, mounting, seed=seed, truth=truth)
     texts: list[str] = []
-    estimator = FusionEstimator(config or FusionConfig(), mounting, fh.link_config(),
+    estimator = FusionEstimator(config or fh.fusion_config(), mounting, fh.link_config(),
                                 report=texts.append)
     out = fh.run(flight, estimator)
     score = fh.score(flight, out, tracker.start_s)
@@ -122,7 +122,7 @@ def test_camera_lever_arm_from_config() -> None:
     truth = fh.survey_flight(legs=1, yaw_swing_deg=60.0, yaw_period_s=6.0)
     lever = np.array([0.4, 0.0, 0.1])
     tracker = fh.TrackerOptions(lever=lever)
-    right = FusionConfig(camera_x_m=0.4, camera_z_m=0.1)
+    right = fh.fusion_config(camera_x_m=0.4, camera_z_m=0.1)
     with_lever, *_ = fly(truth, fh.SensorOptions(), tracker, config=right)
     without, *_ = fly(truth, fh.SensorOptions(), tracker)
     assert with_lever.position_pct <= 3.0

@@ -34,7 +34,11 @@ class FusionConfig:
     # tracker pose: floor of the position noise (metres) and inflation per tracking quality
     vo_position_std_m: float = 0.02
     vo_rotation_std_deg: float = 0.5
+    # the tracker's own position covariance is too small: its errors are correlated with its
+    # rotation errors (tilt vs translation over a flat scene) and wander over ~1 s; variance factor
+    vo_covariance_factor: float = 6.0
     vo_drift_m_per_sqrt_m: float = 0.01  # VO position random walk per sqrt(metre travelled)
+    vo_drift_m_per_sqrt_s: float = 0.0  # VO position random walk per sqrt(second), also at rest
     reanchor_distance_m: float = 5.0  # fuse the map relative to a pose at most this far back
     inflate_insufficient: float = 4.0  # variance factor
     inflate_bad: float = 25.0
@@ -64,9 +68,10 @@ class FusionConfig:
     use_baro: bool = True
     baro_std_m: float = 0.3
     baro_walk_m_per_sqrt_s: float = 0.02
-    # outlier rejection: chi-square gate per measurement (99.9 % for 1 and 3 dof are 10.8, 16.3)
+    # outlier rejection: chi-square gate per measurement (99.9 % for 1, 3, 6 dof: 10.8, 16.3, 22.5)
     gate_chi2_1dof: float = 10.8
     gate_chi2_3dof: float = 16.3
+    gate_chi2_6dof: float = 22.5  # tracker position and attitude together
     reset_after_rejections: int = 10  # in a row: re-reference range/baro, re-align the map
     # timing
     history_s: float = 1.0  # late messages up to this old are fused by replaying the filter
@@ -79,16 +84,17 @@ class FusionConfig:
         """InputError naming the first setting that makes no sense (in config file `path`)."""
         positive = ("scale_std_max", "heading_std_max_deg", "progress_interval_s",
                     "scale_prior_std", "initial_scale", "vo_position_std_m",
-                    "vo_rotation_std_deg", "reanchor_distance_m", "attitude_std_deg",
-                    "heading_std_deg",
+                    "vo_rotation_std_deg", "vo_covariance_factor", "reanchor_distance_m",
+                    "attitude_std_deg", "heading_std_deg",
                     "attitude_timeout_s", "accel_noise", "accel_bias_std", "imu_timeout_s",
                     "motion_accel_std", "range_std_m", "baro_std_m", "gate_chi2_1dof",
-                    "gate_chi2_3dof", "history_s", "clock_offset_window_s",
+                    "gate_chi2_3dof", "gate_chi2_6dof", "history_s", "clock_offset_window_s",
                     "quality_good_std_m", "rate_std_rad_s")
         for key in positive:
             if not getattr(self, key) > 0:
                 raise InputError(f"fusion.{key} must be > 0", path)
         non_negative = ("min_aligned_s", "heading_bias_std_deg", "vo_drift_m_per_sqrt_m",
+                        "vo_drift_m_per_sqrt_s",
                         "alignment_walk_deg_per_sqrt_s",
                         "scale_walk_per_sqrt_s", "accel_bias_walk", "range_std_fraction",
                         "ground_walk_m_per_sqrt_m", "baro_walk_m_per_sqrt_s")

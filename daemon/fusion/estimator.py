@@ -46,14 +46,15 @@ class FrameInput:
 
     p_w: np.ndarray  # camera position in the tracker's world
     R_w_b: np.ndarray  # body attitude in the tracker's world
-    pos_cov: np.ndarray  # 3x3, tracker units
-    rot_cov: np.ndarray  # 3x3, rad^2, tracker world frame
+    cov: np.ndarray  # 6x6 position (tracker units) and rotation (rad), tracker world frame
     quality: str
     segment: int
 
 
-def _frame_input(result: object, R_c_b: np.ndarray, segment: int) -> FrameInput | None:
-    """The tracker pose as filter input; None when it has no usable pose."""
+def _frame_input(result: object, R_c_b: np.ndarray, segment: int,
+                 position_factor: float = 1.0) -> FrameInput | None:
+    """The tracker pose as filter input, its position variances times `position_factor`
+    (correlations kept); None when it has no usable pose."""
     if not result.has_pose or result.quality not in TRACKED:
         return None
     T = np.asarray(result.T_w_c, dtype=np.float64)
@@ -64,7 +65,8 @@ def _frame_input(result: object, R_c_b: np.ndarray, segment: int) -> FrameInput 
         given = np.asarray(result.covariance, dtype=np.float64)
         if given.shape == (6, 6) and np.all(np.isfinite(given)) and np.all(np.diag(given) >= 0):
             cov = 0.5 * (given + given.T)
-    return FrameInput(T[:3, 3].copy(), T[:3, :3] @ R_c_b, cov[:3, :3], cov[3:, 3:],
+    stretch = np.diag([np.sqrt(position_factor)] * 3 + [1.0] * 3)
+    return FrameInput(T[:3, 3].copy(), T[:3, :3] @ R_c_b, stretch @ cov @ stretch,
                       result.quality, segment)
 
 
@@ -112,7 +114,7 @@ class FusionEstimator:
         if result.new_segment and self._had_segment:
             self._segment += 1
             self._bump_reset_counter()
-        frame = _frame_input(result, self.R_c_b, self._segment)
+        frame = _frame_input(result, self.R_c_b, self._segment, self.cfg.vo_covariance_factor)
         if not np.isfinite(t_capture) or t_capture <= self._last_frame_t:
             return None
         self._last_frame_t = t_capture
@@ -131,7 +133,7 @@ class FusionEstimator:
         f.published = True
         att = self.attitude.at(t_capture)
         return build_estimate(
-            f, self.cfg, R_w_b=frame.R_w_b, rot_cov_w=frame.rot_cov,
+            f, self.cfg, R_w_b=frame.R_w_b, rot_cov_w=frame.cov[3:, 3:],
             rates=att.rates if att is not None else np.zeros(3), t_capture=t_capture,
             t_source=float(result.t), state=result.quality, reset_counter=self.reset_counter,
             floor=self.floor)
@@ -228,27 +230,29 @@ class FusionEstimator:
             return
         factor = inflation(self.cfg, frame.quality)
         R_n_b = f.R_nom @ frame.R_w_b
-        if att is not None:
-            m.update_alignment(f, att.R_n_b, frame.R_w_b, self._alignment_noise(f, frame))
-        if m.update_vo(f, frame.p_w, frame.pos_cov, R_n_b, factor, self._imu_fresh(t)):
+        attitude = (None if att is None
+                    else (att.R_n_b, frame.R_w_b, self._attitude_noise(frame.quality)))
+        if m.update_vo(f, frame.p_w, frame.cov, R_n_b, factor, self._imu_fresh(t), attitude):
             if np.linalg.norm(f.x[POS] - f.x[ANCHOR]) > self.cfg.reanchor_distance_m:
                 f.reanchor(frame.p_w, self._vo_noise_n(f, frame))
         elif f.rejections["vo"] >= self.cfg.reset_after_rejections and att is not None:
             if f.published:
                 f.realigns += 1  # the autopilot saw this map: reset_counter must change
-            f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, f.x[LOG_SCALE])
+            # the same map: its scale holds, only where it puts the camera now is re-anchored
+            f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, f.x[LOG_SCALE],
+                            float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE])))
             f.rejections["vo"] = 0
 
     def _vo_noise_n(self, f: NavFilter, frame: FrameInput) -> np.ndarray:
         """The tracker's position noise in metres and N."""
-        cov = f.scale**2 * (f.R_nom @ frame.pos_cov @ f.R_nom.T)
+        cov = f.scale**2 * (f.R_nom @ frame.cov[:3, :3] @ f.R_nom.T)
         return cov + np.eye(3) * self.cfg.vo_position_std_m**2
 
-    def _alignment_noise(self, f: NavFilter, frame: FrameInput) -> np.ndarray:
-        """Covariance of the autopilot-vs-tracker rotation: attitude and compass noise plus the
-        tracker's rotation uncertainty (rad^2, N frame)."""
+    def _attitude_noise(self, quality: str) -> np.ndarray:
+        """Covariance of the autopilot's attitude (compass heading noisier than the tilt) plus
+        a floor for the tracker's rotation (rad^2, N frame)."""
         cfg = self.cfg
         tilt, heading, vo = np.radians([cfg.attitude_std_deg, cfg.heading_std_deg,
                                         cfg.vo_rotation_std_deg])
-        cov = np.diag([tilt**2, tilt**2, heading**2]) + np.eye(3) * vo**2
-        return cov + f.R_nom @ frame.rot_cov @ f.R_nom.T
+        return np.diag([tilt**2, tilt**2, heading**2]) + np.eye(3) * vo**2 * inflation(
+            cfg, quality)

@@ -59,14 +59,10 @@ def fold_alignment(f: NavFilter) -> None:
     f.ekf.x[THETA] = 0.0
 
 
-def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarray,
-              inflation: float, scale_from_motion: bool = True) -> bool:
-    """The tracker's camera position (its world frame and units), covariance `cov_w`.
-
-    The measurement is rotated into N axes (still tracker units). Without an IMU,
-    `scale_from_motion` is False: horizontal motion says nothing about the scale then (only a
-    constant-velocity guess would), so the horizontal rows do not update the scale (a Schmidt
-    "consider" update: the scale's uncertainty still counts in their innovation)."""
+def _position_rows(f: NavFilter, p_w: np.ndarray, R_n_b: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(z, h, H, u) of the tracker's camera position, rotated into N axes (tracker units); u is
+    the camera's offset from the anchor in metres."""
     x = f.x
     s_inv = float(np.exp(-x[LOG_SCALE]))
     u = x[POS] + R_n_b @ f.lever - x[ANCHOR]
@@ -76,26 +72,50 @@ def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarra
     H[:, ANCHOR] = -s_inv * np.eye(3)
     H[:, LOG_SCALE] = -h
     H[:, THETA] = s_inv * skew(u)
-    floor = (f.cfg.vo_position_std_m * s_inv) ** 2
-    R = inflation * (f.R_nom @ cov_w @ f.R_nom.T + floor * np.eye(3))
-    vertical = abs(u[2]) >= 1.0
-    frozen = None if scale_from_motion else (LOG_SCALE, slice(0, 2 if vertical else 3))
-    z = f.R_nom @ (np.asarray(p_w, float) - f.p_w0)
-    ok = gated_update(f, z, h, H, R, f.cfg.gate_chi2_3dof, frozen)
-    fold_alignment(f)
-    f.rejections["vo"] = 0 if ok else f.rejections["vo"] + 1
-    return ok
+    return f.R_nom @ (np.asarray(p_w, float) - f.p_w0), h, H, u
 
 
-def update_alignment(f: NavFilter, R_n_b_autopilot: np.ndarray, R_w_b: np.ndarray,
-                     cov: np.ndarray) -> bool:
-    """The autopilot's attitude against the tracker's: a direct look at R_N_w (gravity and
-    heading of the tracker's world)."""
-    z = matrix_to_rotvec(R_n_b_autopilot @ R_w_b.T @ f.R_nom.T)
+def _alignment_rows(f: NavFilter, R_n_b_autopilot: np.ndarray, R_w_b: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(z, h, H) of the autopilot's attitude against the tracker's: a direct look at R_N_w."""
     H = np.zeros((3, DIM))
     H[:, THETA] = np.eye(3)
-    ok = gated_update(f, z, f.x[THETA].copy(), H, cov, f.cfg.gate_chi2_3dof)
+    return (matrix_to_rotvec(R_n_b_autopilot @ R_w_b.T @ f.R_nom.T), f.x[THETA].copy(), H)
+
+
+def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarray,
+              inflation: float, scale_from_motion: bool = True,
+              attitude: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> bool:
+    """The tracker's camera position (its world frame and units); `cov_w` is its 6x6 pose
+    covariance (position, rotation; tracker world), times `inflation`.
+
+    With `attitude` = (the autopilot's R_n_b, the tracker's R_w_b, the autopilot's attitude
+    noise in N, rad^2) position and attitude are one 6-dof update: the tracker's position errors
+    over a flat scene are mostly its tilt errors times the height, and its covariance says so
+    (position-rotation correlation near 1), so the autopilot's attitude corrects them.
+
+    Without an IMU, `scale_from_motion` is False: horizontal motion says nothing about the scale
+    then (only a constant-velocity guess would), so the horizontal rows do not update the scale
+    (a Schmidt "consider" update: the scale's uncertainty still counts in their innovation)."""
+    z, h, H, u = _position_rows(f, p_w, R_n_b)
+    floor = (f.cfg.vo_position_std_m * float(np.exp(-f.x[LOG_SCALE]))) ** 2
+    rotate = np.kron(np.eye(2), f.R_nom)
+    R = inflation * (rotate @ cov_w @ rotate.T + np.diag([floor] * 3 + [0.0] * 3))
+    gate = f.cfg.gate_chi2_3dof
+    if attitude is None:
+        R = R[:3, :3]
+    else:
+        z_a, h_a, H_a = _alignment_rows(f, attitude[0], attitude[1])
+        z, h, H = np.concatenate([z, z_a]), np.concatenate([h, h_a]), np.vstack([H, H_a])
+        R[3:, 3:] += attitude[2]
+        R[:3, 3:] *= -1.0  # z_a carries minus the tracker's rotation error
+        R[3:, :3] *= -1.0
+        gate = f.cfg.gate_chi2_6dof
+    vertical = abs(u[2]) >= 1.0
+    frozen = None if scale_from_motion else (LOG_SCALE, slice(0, 2 if vertical else 3))
+    ok = gated_update(f, z, h, H, R, gate, frozen)
     fold_alignment(f)
+    f.rejections["vo"] = 0 if ok else f.rejections["vo"] + 1
     return ok
 
 

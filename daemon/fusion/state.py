@@ -122,8 +122,9 @@ class NavFilter:
         self.ekf.P = np.diag(var)
 
     def start_segment(self, p_w: np.ndarray, R_w_b: np.ndarray, R_n_b: np.ndarray,
-                      log_scale: float) -> None:
-        """A new map: clone the camera position as the anchor, fresh scale and alignment."""
+                      log_scale: float, scale_std: float | None = None) -> None:
+        """A new map: clone the camera position as the anchor, fresh alignment, and the scale
+        with `scale_std` (default: the prior's)."""
         self.published = False
         x, P = self.ekf.x, self.ekf.P
         x[ANCHOR] = x[POS] + R_n_b @ self.lever
@@ -132,7 +133,9 @@ class NavFilter:
         P[ANCHOR, ANCHOR] = P[POS, POS]
         x[LOG_SCALE] = log_scale
         x[THETA] = 0.0
-        for index, std in ((LOG_SCALE, self.cfg.scale_prior_std),
+        if scale_std is None:
+            scale_std = self.cfg.scale_prior_std
+        for index, std in ((LOG_SCALE, scale_std),
                            (THETA, np.radians(self.cfg.attitude_std_deg)),
                            (HEADING, np.radians(self.cfg.heading_std_deg))):
             P[index, :] = 0.0
@@ -213,7 +216,8 @@ class NavFilter:
         Q[VEL, VEL] = np.eye(3) * q * dt
         if imu:
             Q[BIAS, BIAS] = np.eye(3) * cfg.accel_bias_walk**2 * dt
-        Q[ANCHOR, ANCHOR] = np.eye(3) * cfg.vo_drift_m_per_sqrt_m**2 * speed * dt
+        Q[ANCHOR, ANCHOR] = np.eye(3) * (cfg.vo_drift_m_per_sqrt_m**2 * speed
+                                         + cfg.vo_drift_m_per_sqrt_s**2) * dt
         Q[LOG_SCALE, LOG_SCALE] = cfg.scale_walk_per_sqrt_s**2 * dt
         Q[THETA, THETA] = np.eye(3) * np.radians(cfg.alignment_walk_deg_per_sqrt_s) ** 2 * dt
         Q[GROUND, GROUND] = cfg.ground_walk_m_per_sqrt_m**2 * horizontal_speed * dt
