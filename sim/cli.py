@@ -25,6 +25,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "render": ("sim.render_command", "render a synthetic flight: images, ground truth, IMU"),
     "eval": ("sim.eval_command", "score an estimated trajectory against ground truth (ATE, RPE)"),
     "track": ("sim.track_command", "run the SDVL tracker over a sequence: accuracy and timing"),
+    "track-table": ("sim.track_table_command", "tracker configurations x sequences: ATE, timing"),
     "calibrate": ("calib.calibrate_command", "calibrate a camera; convert calibration files"),
 }
 

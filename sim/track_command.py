@@ -59,20 +59,32 @@ def stage_stats(timings: list[dict[str, float]]) -> dict[str, dict[str, float]]:
 def run(args: argparse.Namespace) -> int:
     """Track the sequence and report."""
     from vo.config import TrackerConfig
-    from vo.tracker import Tracker
 
     if args.max_frames is not None and args.max_frames <= 0:
         raise InputError("--max-frames must be positive")
     config = TrackerConfig.from_toml(args.config) if args.config else TrackerConfig()
     sequence = resolve_sequence(args.sequence)
-    tracker = Tracker(sequence.camera, config, threaded=args.threaded)
+    report, estimate = track_sequence(sequence, config, args.threaded, args.max_frames,
+                                      args.quiet)
+    if args.out is not None and estimate is not None:
+        write_tum(estimate, args.out)
+    print(json.dumps(report) if args.json else format_report(report))
+    return 0
+
+
+def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
+                   quiet: bool) -> tuple[dict, Trajectory | None]:
+    """Run the tracker over a sequence: the report (see build_report) and the trajectory."""
+    from vo.tracker import Tracker
+
+    tracker = Tracker(sequence.camera, config, threaded=threaded)
     times, poses, timings, qualities, segment = [], [], [], [], []
     n_frames = 0
     started = time.perf_counter()
     first_pose_s = None
     last_print = started
     try:
-        for t, image in sequence.frames(args.max_frames):
+        for t, image in sequence.frames(max_frames):
             result = tracker.process(image, t)
             n_frames += 1
             qualities.append(result.quality)
@@ -85,21 +97,18 @@ def run(args: argparse.Namespace) -> int:
                 if first_pose_s is None:
                     first_pose_s = time.perf_counter() - started
             now = time.perf_counter()
-            if not args.quiet and now - last_print > PROGRESS_EVERY_S:
+            if not quiet and now - last_print > PROGRESS_EVERY_S:
                 last_print = now
                 print(f"\rframe {n_frames}  tracked {len(poses)}  {result.quality:<12}",
                       end="", file=sys.stderr, flush=True)
     finally:
         tracker.close()
-    if not args.quiet:
+    if not quiet:
         print(file=sys.stderr)
     estimate = Trajectory.from_matrices(np.array(times), np.array(poses)) if poses else None
-    if args.out is not None and estimate is not None:
-        write_tum(estimate, args.out)
     report = build_report(sequence, n_frames, estimate, np.array(segment), timings, qualities,
                           first_pose_s, tracker.dropped_mapping_frames)
-    print(json.dumps(report) if args.json else format_report(report))
-    return 0
+    return report, estimate
 
 
 def build_report(sequence, n_frames: int, estimate: Trajectory | None, segment: np.ndarray,

@@ -66,8 +66,9 @@ class TrackerConfig:
     reloc_shift_level: int = 2
     # keyframes tried per lost frame (the newest ones; 0 = all)
     reloc_max_keyframes: int = 0
-    # re-initialise a new map (if reinit_when_lost) after this many frames lost (0 = never)
-    reinit_after_lost_frames: int = 100
+    # while relocalising, a new map is initialised on the side (if reinit_when_lost); it is
+    # taken once tracking has been lost for this many frames
+    reinit_after_lost_frames: int = 30
 
     # keyframes and mapping (6.6)
     kf_min_frames: int = 30
@@ -80,6 +81,12 @@ class TrackerConfig:
     max_keyframes: int = 30
     covisible_min_shared: int = 10
     mapping_queue_size: int = 4
+
+    # local bundle adjustment (6.6.4) on each new keyframe: iterations before and after the
+    # chi-square outlier cut; skipped while the mapping thread has frames waiting
+    local_ba: bool = False
+    ba_first_iterations: int = 5
+    ba_second_iterations: int = 10
 
     # map initialisation (6.6.1)
     init_min_features: int = 50

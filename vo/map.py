@@ -87,8 +87,8 @@ class PointStore:
             self.status[idx] = DELETED
             self._pending.append((self._step, idx))
 
-    def step(self) -> None:
-        """Advance the recycling clock by one mapping step."""
+    def step(self) -> bool:
+        """Advance the recycling clock by one mapping step; True when slots were freed."""
         self._step += 1
         keep = []
         for when, idx in self._pending:
@@ -97,7 +97,9 @@ class PointStore:
                 self._free.extend(int(i) for i in idx)
             else:
                 keep.append((when, idx))
+        freed = len(keep) < len(self._pending)
         self._pending = keep
+        return freed
 
     def alive(self) -> np.ndarray:
         """Indices of candidate and converged points."""

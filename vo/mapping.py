@@ -4,10 +4,13 @@ keyframe removal farthest-first."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numba
 import numpy as np
 
 from calib.camera import unproject_pixel
+from vo.bundle_adjustment import local_ba
 from vo.config import TrackerConfig
 from vo.depth_filter import linearity_index, update_seed
 from vo.frame import Frame
@@ -138,6 +141,10 @@ class Mapper:
         self.map = map_
         self.px_angle = 2.0 * np.arctan(0.5 / np.sqrt(camera.fx * camera.fy))
         self.n_keyframes_added = 0
+        # the tracker says whether there is time for a bundle adjustment (threaded: no frame
+        # waiting); skipped ones are counted
+        self.ba_allowed: Callable[[], bool] = lambda: True
+        self.skipped_ba = 0
 
     def _search_args(self, frame: Frame):
         c = frame.corners(self.config.fast_threshold)
@@ -150,7 +157,9 @@ class Mapper:
         """Process one tracked frame (and make it a keyframe when asked)."""
         pts = self.map.points
         with self.map.lock:
-            pts.step()
+            if pts.step():
+                # observations of freed slots must go before the slots are reused
+                self.map.prune_observations()
         cand = np.flatnonzero(pts.status == CANDIDATE)
         cand = cand[pts.host[cand] != frame.slot]
         found_uv = np.zeros((0, 2))
@@ -209,6 +218,10 @@ class Mapper:
             self._cap_keyframes(frame)
             if self.n_keyframes_added % 10 == 0:
                 self.map.prune_observations()
+        if cfg.local_ba and self.ba_allowed():
+            local_ba(self.map, slot, self.camera, cfg)
+        else:
+            self.skipped_ba += int(cfg.local_ba)
 
     def _scene_depths(self, frame: Frame) -> np.ndarray:
         pts = self.map.points

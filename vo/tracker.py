@@ -58,12 +58,15 @@ class Tracker:
         self.map = Map(self.camera.width, self.camera.height, cfg.pyramid_levels,
                        cfg.max_keyframes)
         self.mapper = Mapper(self.camera, cfg, self.map)
+        if self.threaded:
+            self.mapper.ba_allowed = lambda: self._queue.empty()
         self.initializer = Initializer(self.camera, cfg)
         self.last: Frame | None = None
         self.motion = np.eye(4)
         self.lost = LostCounter(cfg)
         self.is_lost = False
-        self.lost_frames = 0
+        self.lost_init: Initializer | None = None  # a new map, built while relocalising
+        self.lost_since = 0  # frame id at which tracking was lost
         self.frames_since_kf = 0
         self.kf_visible = 0
         if self.threaded:
@@ -128,6 +131,8 @@ class Tracker:
         elif self.is_lost:
             with self.map.lock:
                 result, keyframe = self._relocalize(frame, timings), False
+            if result.quality == "lost":
+                result, keyframe = self._initialize_while_lost(frame, timings, result)
         else:
             with self.map.lock:
                 result, keyframe = self._track(frame, timings)
@@ -143,20 +148,33 @@ class Tracker:
         return result
 
     def _initialize(self, frame: Frame, timings: dict[str, float]) -> tuple[FrameResult, bool]:
-        t0 = time.perf_counter()
-        init = self.initializer
-        outcome = init.add(frame) if init.ref is not None else "restart"
-        if outcome == "restart":
-            init.set_reference(frame)
-        timings["init"] = _ms(t0)
+        outcome = _init_step(self.initializer, frame, timings)
         if not isinstance(outcome, InitialMap):
             return FrameResult(frame.t, None, "initializing"), False
-        self._build_initial_map(init.ref, frame, outcome)
+        return self._start_map(self.initializer.ref, frame, outcome), True
+
+    def _initialize_while_lost(self, frame: Frame, timings: dict[str, float],
+                               lost: FrameResult) -> tuple[FrameResult, bool]:
+        """While relocalising, a new map is initialised on the side; it replaces the old map
+        once tracking has been lost for reinit_after_lost_frames frames."""
+        init = self.lost_init
+        if init is None:
+            return lost, False
+        outcome = _init_step(init, frame, timings)
+        if not isinstance(outcome, InitialMap) or (
+                frame.id - self.lost_since < self.config.reinit_after_lost_frames):
+            return lost, False
+        self._reset()
+        return self._start_map(init.ref, frame, outcome), True
+
+    def _start_map(self, ref: Frame, frame: Frame, outcome: InitialMap) -> FrameResult:
+        """A new map from the initialiser's two views; frame's result (a new segment)."""
+        self._build_initial_map(ref, frame, outcome)
         ids = frame.feat_point
         _, H, sigma, _ = self._optimize(frame, ids, frame.feat_px, frame.feat_level)
         cov = pose_covariance(H, sigma, frame.T_w_c)
         n = len(ids)
-        return FrameResult(frame.t, frame.T_w_c, "good", cov, n, n, n, new_segment=True), True
+        return FrameResult(frame.t, frame.T_w_c, "good", cov, n, n, n, new_segment=True)
 
     def _build_initial_map(self, ref: Frame, cur: Frame, init: InitialMap) -> None:
         """Two keyframes and converged points from the two-view geometry."""
@@ -311,14 +329,16 @@ class Tracker:
             n_seen < cfg.kf_points_ratio * self.kf_visible or n_seen < cfg.kf_min_points)
 
     def _on_lost(self) -> None:
-        """A lost frame: start relocalising (6.9) against the map, or initialise a new map
-        when relocalisation is off or has failed for too long (and the config allows it)."""
+        """Tracking is lost: relocalise (6.9) against the map from now on (building a new
+        map on the side when re-initialisation is allowed), or start a new map at once when
+        relocalisation is off."""
         cfg = self.config
-        patient = cfg.reinit_after_lost_frames <= 0 or (
-            self.lost_frames < cfg.reinit_after_lost_frames)
-        if cfg.relocalize and self.map.keyframes and patient:
+        if self.is_lost:
+            return
+        if cfg.relocalize and self.map.keyframes:
             self.is_lost = True
-            self.lost_frames += 1
+            self.lost_since = self._frame_id
+            self.lost_init = Initializer(self.camera, cfg) if cfg.reinit_when_lost else None
         elif cfg.reinit_when_lost:
             self._reset()
 
@@ -343,7 +363,7 @@ class Tracker:
         timings["relocalize"] = _ms(t0)
         self._accept(frame, m)
         self.is_lost = False
-        self.lost_frames = 0
+        self.lost_init = None
         self.lost = LostCounter(cfg)
         self.motion = np.eye(4)
         self.last = frame
@@ -448,6 +468,16 @@ class _Matches:
     T: np.ndarray
     H: np.ndarray | None
     sigma: float
+
+
+def _init_step(init: Initializer, frame: Frame, timings: dict[str, float]):
+    """Feed frame to an initialiser (restarting it from frame when needed); its outcome."""
+    t0 = time.perf_counter()
+    outcome = init.add(frame) if init.ref is not None else "restart"
+    if outcome == "restart":
+        init.set_reference(frame)
+    timings["init"] = _ms(t0)
+    return outcome
 
 
 def _ms(t0: float) -> float:
