@@ -22,7 +22,6 @@ from vo.se3 import exp_se3, inv_se3
 
 CHI2_2DOF_95 = 5.991
 MIN_VIEWS = 2  # keyframes observing a point besides its host
-HUBER_PX = 2.0
 
 
 @dataclass
@@ -122,8 +121,7 @@ def solve(p: Problem, first: int = 5, second: int = 10) -> tuple[np.ndarray, np.
             break
         start = 0.5 * np.sum(_residuals(x, p, keep) ** 2)
         res = least_squares(_residuals, x, jac_sparsity=_sparsity(p, keep), method="trf",
-                            max_nfev=rounds, x_scale="jac", loss="huber", f_scale=HUBER_PX,
-                            args=(p, keep))
+                            max_nfev=rounds, x_scale="jac", args=(p, keep))
         if 0.5 * np.sum(res.fun ** 2) < start:
             x = res.x
         if drop:
