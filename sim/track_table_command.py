@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from calib.errors import InputError
 
@@ -17,6 +18,8 @@ CONFIGS = {
     "patch+ba": {"local_ba": True},
     "patch+ba+rej": {"local_ba": True, "outlier_rejection": True},
 }
+# tracker presets of the vo package used as the base config of sequences with this prefix
+BASE_PRESETS = {"kitti": "kitti_10hz.toml"}
 # original C++ SDVL (shared data README): frames tracked, ATE RMSE m, tracking ms median
 ORIGINAL = {
     "vamr_ex01_checkerboard736": ("734/736", "0.0047", "3.2"),
@@ -54,8 +57,9 @@ def run(args: argparse.Namespace) -> int:
     for seq_name in args.sequences:
         sequence = resolve_sequence(seq_name)
         for name in names:
-            report, _ = track_sequence(sequence, TrackerConfig.from_dict(CONFIGS[name]),
-                                       args.threaded, args.max_frames, quiet=True)
+            config = TrackerConfig.from_dict({**base_parameters(seq_name), **CONFIGS[name]})
+            report, _ = track_sequence(sequence, config, args.threaded, args.max_frames,
+                                       quiet=True)
             row = table_row(seq_name, name, report)
             print(json.dumps(row) if args.json else format_row(row), flush=True)
         if not args.json and seq_name in ORIGINAL:
@@ -63,6 +67,19 @@ def run(args: argparse.Namespace) -> int:
             print(f"{seq_name:<28} {'original C++':<14} {tracked:>9} {ate:>12} {'':>10} "
                   f"{ms:>9} {'':>9}")
     return 0
+
+
+def base_parameters(sequence: str) -> dict:
+    """Parameters of the vo preset for this kind of sequence (BASE_PRESETS), else none."""
+    import tomllib
+
+    import vo
+
+    for prefix, file in BASE_PRESETS.items():
+        if Path(sequence).name.startswith(prefix):
+            data = tomllib.loads((Path(vo.__file__).parent / "presets" / file).read_text())
+            return data.get("tracker", data)
+    return {}
 
 
 def table_row(sequence: str, config: str, report: dict) -> dict:
