@@ -67,7 +67,7 @@ class TrackerConfig:
     # keyframes tried per lost frame (the newest ones; 0 = all)
     reloc_max_keyframes: int = 0
     # while relocalising, a new map is initialised on the side (if reinit_when_lost); it is
-    # taken once tracking has been lost for this many frames
+    # taken once relocalisation has failed this many frames with a usable view
     reinit_after_lost_frames: int = 30
 
     # keyframes and mapping (6.6)

@@ -66,7 +66,7 @@ class Tracker:
         self.lost = LostCounter(cfg)
         self.is_lost = False
         self.lost_init: Initializer | None = None  # a new map, built while relocalising
-        self.lost_since = 0  # frame id at which tracking was lost
+        self.view_since: int | None = None  # lost, and the view usable since this frame id
         self.frames_since_kf = 0
         self.kf_visible = 0
         if self.threaded:
@@ -156,13 +156,17 @@ class Tracker:
     def _initialize_while_lost(self, frame: Frame, timings: dict[str, float],
                                lost: FrameResult) -> tuple[FrameResult, bool]:
         """While relocalising, a new map is initialised on the side; it replaces the old map
-        once tracking has been lost for reinit_after_lost_frames frames."""
+        once relocalisation has failed for reinit_after_lost_frames frames since the view
+        became usable (the initialiser could first track features into a frame: a covered
+        lens does not count)."""
         init = self.lost_init
         if init is None:
             return lost, False
         outcome = _init_step(init, frame, timings)
+        if outcome != "restart" and self.view_since is None:
+            self.view_since = frame.id
         if not isinstance(outcome, InitialMap) or (
-                frame.id - self.lost_since < self.config.reinit_after_lost_frames):
+                frame.id - self.view_since < self.config.reinit_after_lost_frames):
             return lost, False
         self._reset()
         return self._start_map(init.ref, frame, outcome), True
@@ -337,7 +341,7 @@ class Tracker:
             return
         if cfg.relocalize and self.map.keyframes:
             self.is_lost = True
-            self.lost_since = self._frame_id
+            self.view_since = None
             self.lost_init = Initializer(self.camera, cfg) if cfg.reinit_when_lost else None
         elif cfg.reinit_when_lost:
             self._reset()
