@@ -31,6 +31,16 @@ class FusionConfig:
     # priors of a new map segment
     scale_prior_std: float = 2.0  # of ln(scale): 2.0 lets the scale be 7x off either way
     initial_scale: float = 1.0  # metres per VO unit guessed for the first segment
+    # vehicle speed when tracking starts: a take-off starts still, a flight that starts tracking
+    # on the way does not (a tight prior there biases the first scale)
+    start_velocity_std: float = 3.0  # m/s
+    # while the std of ln(scale) is above coarse_scale_std the tracker's horizontal noise is
+    # inflated by coarse_inflation (variance factor): without a climb the scale comes from the
+    # IMU, the EKF linearises around a scale still far off, and full-weight updates shrink the
+    # covariance before the estimate gets there (a biased, overconfident scale: 14 % low on
+    # survey-down with the real tracker, 2 % with this); a climb's vertical rows keep full weight
+    coarse_scale_std: float = 0.2
+    coarse_inflation: float = 10.0
     # tracker pose: floor of the position noise (metres) and inflation per tracking quality
     vo_position_std_m: float = 0.02
     vo_rotation_std_deg: float = 0.5
@@ -83,7 +93,8 @@ class FusionConfig:
     def check(self, path: Path | None = None) -> None:
         """InputError naming the first setting that makes no sense (in config file `path`)."""
         positive = ("scale_std_max", "heading_std_max_deg", "progress_interval_s",
-                    "scale_prior_std", "initial_scale", "vo_position_std_m",
+                    "scale_prior_std", "initial_scale", "start_velocity_std",
+                    "coarse_scale_std", "vo_position_std_m",
                     "vo_rotation_std_deg", "vo_covariance_factor", "reanchor_distance_m",
                     "attitude_std_deg", "heading_std_deg",
                     "attitude_timeout_s", "accel_noise", "accel_bias_std", "imu_timeout_s",
@@ -101,8 +112,10 @@ class FusionConfig:
         for key in non_negative:
             if not getattr(self, key) >= 0:
                 raise InputError(f"fusion.{key} must be >= 0", path)
-        if not (self.inflate_insufficient >= 1 and self.inflate_bad >= 1):
-            raise InputError("fusion.inflate_insufficient and inflate_bad must be >= 1", path)
+        if not (self.inflate_insufficient >= 1 and self.inflate_bad >= 1
+                and self.coarse_inflation >= 1):
+            raise InputError("fusion.inflate_insufficient, inflate_bad and coarse_inflation "
+                             "must be >= 1", path)
         if not 0 < self.range_max_tilt_deg < 90:
             raise InputError("fusion.range_max_tilt_deg must be in (0, 90)", path)
         if self.reset_after_rejections < 1:

@@ -36,7 +36,6 @@ from daemon.mounting import body_from_camera
 
 log = logging.getLogger("sdvl.fusion")
 INBOX_LIMIT = 20_000
-START_VELOCITY_STD = 0.5  # m/s: the vehicle is about still when tracking starts
 TRACKED = ("good", "insufficient", "bad")
 
 
@@ -219,7 +218,7 @@ class FusionEstimator:
             if att is None:
                 self.gate.waiting("waiting for the autopilot's ATTITUDE", t)
                 return
-            f.start(t, START_VELOCITY_STD)
+            f.start(t, self.cfg.start_velocity_std)
         self._propagate(t)
         if f.segment != frame.segment:
             if att is None:
@@ -229,10 +228,13 @@ class FusionEstimator:
             f.segment = frame.segment
             return
         factor = inflation(self.cfg, frame.quality)
+        coarse = (self.cfg.coarse_inflation
+                  if np.sqrt(f.P[LOG_SCALE, LOG_SCALE]) > self.cfg.coarse_scale_std else 1.0)
         R_n_b = f.R_nom @ frame.R_w_b
         attitude = (None if att is None
                     else (att.R_n_b, frame.R_w_b, self._attitude_noise(frame.quality)))
-        if m.update_vo(f, frame.p_w, frame.cov, R_n_b, factor, self._imu_fresh(t), attitude):
+        if m.update_vo(f, frame.p_w, frame.cov, R_n_b, factor, self._imu_fresh(t), attitude,
+                       coarse):
             if np.linalg.norm(f.x[POS] - f.x[ANCHOR]) > self.cfg.reanchor_distance_m:
                 f.reanchor(frame.p_w, self._vo_noise_n(f, frame))
         elif f.rejections["vo"] >= self.cfg.reset_after_rejections and att is not None:

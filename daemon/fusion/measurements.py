@@ -85,7 +85,8 @@ def _alignment_rows(f: NavFilter, R_n_b_autopilot: np.ndarray, R_w_b: np.ndarray
 
 def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarray,
               inflation: float, scale_from_motion: bool = True,
-              attitude: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> bool:
+              attitude: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+              horizontal_inflation: float = 1.0) -> bool:
     """The tracker's camera position (its world frame and units); `cov_w` is its 6x6 pose
     covariance (position, rotation; tracker world), times `inflation`.
 
@@ -96,11 +97,14 @@ def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarra
 
     Without an IMU, `scale_from_motion` is False: horizontal motion says nothing about the scale
     then (only a constant-velocity guess would), so the horizontal rows do not update the scale
-    (a Schmidt "consider" update: the scale's uncertainty still counts in their innovation)."""
+    (a Schmidt "consider" update: the scale's uncertainty still counts in their innovation).
+    `horizontal_inflation` further inflates the north and east rows (variance factor)."""
     z, h, H, u = _position_rows(f, p_w, R_n_b)
     floor = (f.cfg.vo_position_std_m * float(np.exp(-f.x[LOG_SCALE]))) ** 2
     rotate = np.kron(np.eye(2), f.R_nom)
     R = inflation * (rotate @ cov_w @ rotate.T + np.diag([floor] * 3 + [0.0] * 3))
+    stretch = np.diag([np.sqrt(horizontal_inflation)] * 2 + [1.0] * 4)
+    R = stretch @ R @ stretch
     gate = f.cfg.gate_chi2_3dof
     if attitude is None:
         R = R[:3, :3]
