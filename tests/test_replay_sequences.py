@@ -40,19 +40,30 @@ def test_vamr_fast_replay_scores_json_plot_and_agrees_with_eval(data_dir, tmp_pa
     assert ev["rot_rmse_deg"] == pytest.approx(r["rot_rmse_deg"], rel=1e-6)
 
 
-def test_tum_realtime_replay(data_dir, tmp_path, capsys):
-    r = replay_json(capsys, str(data_dir / "tum_fr1_rpy"), "--realtime", "--max-frames", "300",
+def test_tum_replay(data_dir, tmp_path, capsys):
+    # --fast with mapping inline: every frame is tracked and mapped, so the score does not
+    # depend on the machine's load
+    config = tmp_path / "inline.toml"
+    config.write_text("[service]\nmapping_thread = false\n")
+    r = replay_json(capsys, str(data_dir / "tum_fr1_rpy"), "--fast", "--max-frames", "300",
+                    "--config", str(config), "--out", str(tmp_path))
+    assert r["mode"] == "fast" and r["frames"] == r["processed"] == 300
+    assert r["tracked"] >= 0.7 * r["frames"] and r["resets"] <= 4
+    assert r["messages_received"] >= r["tracked"] - 5
+    # mostly rotation (~0.2 m of translation): a constant estimate scores ~0.05 m here
+    assert r["ate_rmse_m"] < 0.045
+    assert r["message_rate_hz"] <= 50.5 and r["latency_ms_p99"] < 200.0
+
+
+def test_tum_realtime_replay_paces_and_counts_drops(data_dir, tmp_path, capsys):
+    r = replay_json(capsys, str(data_dir / "tum_fr1_rpy"), "--realtime", "--max-frames", "120",
                     "--out", str(tmp_path))
-    assert r["mode"] == "realtime" and r["frames"] == 300
+    assert r["mode"] == "realtime" and r["frames"] == 120
     assert r["processed"] + r["dropped"] == r["frames"]
     # ~10 ms tracking per 33 ms frame drops nothing on an idle 2-core machine (sdvl replay
     # --realtime measures it); a test machine running other tests drops some
-    assert r["drop_fraction"] <= 0.35
-    assert r["tracked"] >= 0.5 * r["frames"] and r["resets"] <= 8
-    assert r["messages_received"] >= 0.7 * r["tracked"]
-    # mostly rotation (~0.2 m of translation): a constant estimate scores ~0.05 m here
-    assert r["ate_rmse_m"] < 0.06
-    assert 10.0 <= r["message_rate_hz"] <= 31.0 and r["latency_ms_p99"] < 200.0
+    assert r["drop_fraction"] <= 0.5
+    assert r["message_rate_hz"] <= 31.0
 
 
 def test_text_report_and_bad_input(data_dir, tmp_path, capsys):
