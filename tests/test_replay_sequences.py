@@ -85,3 +85,16 @@ def test_synthetic_take_off_replay_with_pass_through(tmp_path, capsys):
     assert r["tracked_fraction"] >= 0.75 and r["resets"] == 0
     assert r["messages_received"] >= 0.9 * r["tracked"]
     assert r["ate_rmse_m"] < 0.4  # a 2.5 m climb with a slow wander; measured 0.15 m
+
+
+@pytest.mark.parametrize(("preset", "max_ate_m"), [("survey-down", 0.03), ("room-handheld", 0.02)])
+def test_synthetic_preset_replays(tmp_path, capsys, preset, max_ate_m):
+    # measured with mapping inline: 0.0055 m (survey-down), 0.0035 m (room-handheld)
+    config = tmp_path / "inline.toml"
+    config.write_text("[service]\nmapping_thread = false\n")
+    r = replay_json(capsys, preset, "--fast", "--estimator", "pass-through", "--max-frames",
+                    "150", "--config", str(config), "--out", str(tmp_path))
+    assert r["frames"] == 150 and r["dropped"] == 0 and r["resets"] == 0
+    assert r["tracked_fraction"] >= 0.8
+    assert r["messages_received"] >= r["tracked"] - 5
+    assert r["ate_rmse_m"] < max_ate_m
