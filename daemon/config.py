@@ -8,13 +8,11 @@ handed unchanged to `vo.config.TrackerConfig.from_dict`, which validates it.
 from __future__ import annotations
 
 import dataclasses
-import difflib
-import tomllib
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from calib.errors import InputError
+from calib.tables import dataclass_from_table, read_toml, suggest
 from daemon.fusion.config import FusionConfig
 
 EXAMPLE_CONFIG = Path(__file__).with_name("example_config.toml")
@@ -102,35 +100,8 @@ SECTIONS: dict[str, type] = {f.name: f.default_factory for f in dataclasses.fiel
                              if f.name != "tracker"}
 
 
-def _suggest(name: str, choices: typing.Iterable[str]) -> str:
-    close = difflib.get_close_matches(name, list(choices), n=1)
-    return f"did you mean '{close[0]}'?" if close else f"known keys: {', '.join(choices)}"
-
-
-def _type_name(tp: type) -> str:
-    return {int: "an integer", float: "a number", bool: "true or false", str: "a string"}[tp]
-
-
-def _check_value(key: str, value: object, tp: type, path: Path | None) -> object:
-    """`value` converted to `tp` (ints are accepted as floats) or an InputError naming `key`."""
-    ok = isinstance(value, tp) and not (tp is int and isinstance(value, bool))
-    if tp is float and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
-    if not ok:
-        raise InputError(f"{key} must be {_type_name(tp)}, got {value!r}", path)
-    return value
-
-
 def _build_section(name: str, cls: type, table: object, path: Path | None) -> object:
-    if not isinstance(table, dict):
-        raise InputError(f"[{name}] must be a table, e.g. a line '[{name}]' followed by keys", path)
-    hints = typing.get_type_hints(cls)
-    values = {}
-    for key, value in table.items():
-        if key not in hints:
-            raise InputError(f"unknown key '{name}.{key}': {_suggest(key, hints)}", path)
-        values[key] = _check_value(f"{name}.{key}", value, hints[key], path)
-    section = cls(**values)
+    section = dataclass_from_table(cls, table, name, path)
     if hasattr(section, "check"):  # a section with its own range checks (e.g. fusion)
         section.check(path)
     return section
@@ -173,7 +144,7 @@ def config_from_dict(data: dict, path: Path | None = None) -> Config:
     sections = {}
     for name, table in data.items():
         if name not in known:
-            raise InputError(f"unknown section '[{name}]': {_suggest(name, known)}", path)
+            raise InputError(f"unknown section '[{name}]': {suggest(name, known)}", path)
         if name == "tracker":
             if not isinstance(table, dict):
                 raise InputError("[tracker] must be a table of tracker options", path)
@@ -188,15 +159,9 @@ def config_from_dict(data: dict, path: Path | None = None) -> Config:
 def load_config(path: str | Path) -> Config:
     """Read and validate a TOML config file."""
     path = Path(path)
-    try:
-        with path.open("rb") as f:
-            data = tomllib.load(f)
-    except FileNotFoundError:
-        raise InputError("config file not found (see daemon/example_config.toml)", path) from None
-    except OSError as exc:
-        raise InputError(f"cannot read config: {exc.strerror}", path) from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"not valid TOML: {exc}", path) from None
+    if not path.is_file():
+        raise InputError("config file not found (see daemon/example_config.toml)", path)
+    data = read_toml(path)
     return config_from_dict(data, path)
 
 

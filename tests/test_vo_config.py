@@ -43,7 +43,7 @@ def test_unknown_key_and_bad_file(tmp_path):
     bad.write_text("max_matches = \n")
     with pytest.raises(InputError, match=r"bad\.toml"):
         TrackerConfig.from_toml(bad)
-    with pytest.raises(InputError, match="no such"):
+    with pytest.raises(InputError, match="file not found"):
         TrackerConfig.from_toml(tmp_path / "missing.toml")
     with pytest.raises(InputError):
         TrackerConfig.from_dict({"align_min_level": 4, "align_max_level": 2})

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import tomllib
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 from calib.errors import InputError
+from calib.tables import dataclass_from_table, read_toml
 
 
 @dataclass
@@ -127,24 +127,12 @@ class TrackerConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any], path: str | Path | None = None) -> TrackerConfig:
         """A config from a mapping of parameter names; unknown keys and wrong types are errors."""
-        known = {f.name: f for f in fields(cls)}
-        values: dict[str, Any] = {}
-        for key, value in d.items():
-            if key not in known:
-                raise InputError(f"unknown tracker parameter '{key}'", path)
-            values[key] = _checked(key, known[key].type, value, path)
-        return cls(**values)
+        return dataclass_from_table(cls, d, "tracker", path)
 
     @classmethod
     def from_toml(cls, path: str | Path) -> TrackerConfig:
         """A config from a TOML file (top level, or a [tracker] table)."""
-        path = Path(path)
-        try:
-            data = tomllib.loads(path.read_text())
-        except FileNotFoundError as exc:
-            raise InputError("no such config file", path) from exc
-        except tomllib.TOMLDecodeError as exc:
-            raise InputError(f"not valid TOML: {exc}", path) from exc
+        data = read_toml(path)
         if isinstance(data.get("tracker"), dict):
             data = data["tracker"]
         return cls.from_dict(data, path)
@@ -153,14 +141,3 @@ class TrackerConfig:
         """The parameters as a plain mapping (for reports and TOML round trips)."""
         return asdict(self)
 
-
-def _checked(key: str, type_name: str, value: Any, path: str | Path | None) -> Any:
-    """`value` converted to the field's type, or an InputError naming the key."""
-    ok = {
-        "int": isinstance(value, int) and not isinstance(value, bool),
-        "float": isinstance(value, int | float) and not isinstance(value, bool),
-        "bool": isinstance(value, bool),
-    }[type_name]
-    if not ok:
-        raise InputError(f"tracker parameter '{key}' must be {type_name}, got {value!r}", path)
-    return float(value) if type_name == "float" else value
