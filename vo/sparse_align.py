@@ -47,6 +47,19 @@ def reference_patches(flat, off, w, h, level, px, xyz, fx, fy):
 
 
 @numba.njit(cache=True, nogil=True)
+def _patch_centre(params, T_cur_ref, p_ref, level, w, h):
+    """(visible, u, v): where a reference point's patch lands on a pyramid level of the
+    current frame, with room for the whole patch."""
+    X, Y, Z = transform(T_cur_ref, p_ref[0], p_ref[1], p_ref[2])
+    u, v = project_point(params, X, Y, Z)
+    if np.isnan(u):
+        return False, 0.0, 0.0
+    u = to_level(u, level)
+    v = to_level(v, level)
+    return inside(u, v, w, h, HALF4 + 1), u, v
+
+
+@numba.njit(cache=True, nogil=True)
 def _normal_equations(params, flat, off, w, h, level, patches, jac, valid, xyz, T_cur_ref):
     """H, b, mean squared residual and pixel count of the photometric error at T_cur_ref."""
     H = np.zeros((6, 6))
@@ -56,13 +69,8 @@ def _normal_equations(params, flat, off, w, h, level, patches, jac, valid, xyz, 
     for i in range(patches.shape[0]):
         if not valid[i]:
             continue
-        X, Y, Z = transform(T_cur_ref, xyz[i, 0], xyz[i, 1], xyz[i, 2])
-        u, v = project_point(params, X, Y, Z)
-        if np.isnan(u):
-            continue
-        u = to_level(u, level)
-        v = to_level(v, level)
-        if not inside(u, v, w, h, HALF4 + 1):
+        ok, u, v = _patch_centre(params, T_cur_ref, xyz[i], level, w, h)
+        if not ok:
             continue
         k = 0
         for r in range(-HALF4, HALF4):
@@ -127,13 +135,8 @@ def _residual_ratio(params, flat, off, w, h, level, patches, valid, xyz, T_cur_r
     for i in range(patches.shape[0]):
         if not valid[i]:
             continue
-        X, Y, Z = transform(T_cur_ref, xyz[i, 0], xyz[i, 1], xyz[i, 2])
-        u, v = project_point(params, X, Y, Z)
-        if np.isnan(u):
-            continue
-        u = to_level(u, level)
-        v = to_level(v, level)
-        if not inside(u, v, w, h, HALF4 + 1):
+        ok, u, v = _patch_centre(params, T_cur_ref, xyz[i], level, w, h)
+        if not ok:
             continue
         res = np.empty(N4)
         k = 0
