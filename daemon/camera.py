@@ -45,10 +45,12 @@ class FrameSource(Protocol):
 
 
 def grey(image: np.ndarray) -> np.ndarray:
-    """A uint8 single-channel view of what a capture returned."""
+    """A uint8 single-channel view of what a capture or a video file returned."""
     if image.ndim == 3:
         code = cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY
         image = cv2.cvtColor(image, code)
+    if image.dtype == np.uint16:  # 16-bit sensors: keep the top 8 bits, same for every frame
+        return (image >> 8).astype(np.uint8)
     return image if image.dtype == np.uint8 else cv2.convertScaleAbs(image)
 
 

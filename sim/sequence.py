@@ -31,16 +31,6 @@ def load_grey(path: str | Path) -> np.ndarray:
     return image
 
 
-def to_grey(image: np.ndarray) -> np.ndarray:
-    """A uint8 single-channel copy of a grey, BGR or BGRA image."""
-    if image.ndim == 3:
-        code = cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY
-        image = cv2.cvtColor(image, code)
-    if image.dtype != np.uint8:
-        image = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
-    return image
-
-
 @dataclass
 class Sequence:
     """An image sequence: frames come from `frames()` one at a time, never all in memory.

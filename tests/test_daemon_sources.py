@@ -201,3 +201,13 @@ def test_camera_that_fails_mid_stream_is_reopened():
     thread.join(1.0)
     assert source.opens >= 3 and states.count("no camera") >= 2
     assert [f.index for f in frames] == sorted({f.index for f in frames})
+
+
+def test_grey_converts_colour_and_16_bit_frames_the_same_way_every_frame():
+    from daemon.camera import grey
+
+    bgr = np.zeros((4, 6, 3), np.uint8)
+    bgr[..., 2] = 200
+    assert grey(bgr).shape == (4, 6) and grey(bgr).dtype == np.uint8
+    deep = np.full((4, 6), 0x8000, np.uint16)
+    assert (grey(deep) == 0x80).all()

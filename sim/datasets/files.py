@@ -11,7 +11,8 @@ import numpy as np
 from calib.camera import CameraModel
 from calib.camera_yaml import load_camera
 from calib.errors import InputError
-from sim.sequence import Sequence, image_list_sequence, to_grey
+from daemon.camera import grey
+from sim.sequence import Sequence, image_list_sequence
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mkv", ".mov", ".webm", ".m4v", ".mpg", ".mpeg"}
@@ -69,7 +70,7 @@ def read_video(path: Path, camera: CameraModel | None = None,
                 ok, image = cap.read()
                 if not ok:
                     return
-                yield i / fps, to_grey(image)
+                yield i / fps, grey(image)
         finally:
             cap.release()
 
