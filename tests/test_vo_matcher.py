@@ -9,6 +9,7 @@ from vo_scenes import load_texture, look_down_pose, plane_depth, render_plane, s
 
 from vo.frame import Frame
 from vo.matcher import match_direct, match_epipolar, triangulate_depth
+from vo.orb import OrbQuery, query
 from vo.patch import BORDER_PATCH, sample, zmssd
 from vo.se3 import inv_se3
 
@@ -87,7 +88,8 @@ def test_epipolar_search_finds_the_true_corner(scene):
                                      ref.pyr.heights, px[i, 0], px[i, 1], 0, f[i], rho * 1.2,
                                      rho * 0.5, T_cur_ref, cur.pyr.flat, cur.pyr.offsets,
                                      cur.pyr.widths, cur.pyr.heights, c.x, c.y, c.xn, c.yn,
-                                     c.row_start, 0, 2, 2.0, 2000.0, 10)
+                                     c.row_start, 0, 2, 2.0, 2000.0, 10,
+                                     query(OrbQuery.patches(1, 5).tables, 0))
         if ok:
             found += 1
             correct += np.hypot(u - true[i, 0], v - true[i, 1]) < 0.2

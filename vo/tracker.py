@@ -425,7 +425,8 @@ class Tracker:
         idx = np.flatnonzero(usable)
         search = pts.status[idx] == CANDIDATE
         return self.reprojector.run(self.camera.params, frame, pts, self.map.obs, idx, search,
-                                    self.map.kf_pyr, self.map.kf_T_c_w, cfg)
+                                    self.map.kf_pyr, self.map.kf_T_c_w, cfg,
+                                    self.map.describe_points)
 
     def _optimize(self, frame: Frame, ids: np.ndarray, uv: np.ndarray, levels: np.ndarray):
         """Pose refinement from matches; returns (T_c_w, H, sigma, per-match error)."""
