@@ -20,7 +20,7 @@ CONFIGS = {
     for matcher in ("patch", "orb") for ba in (False, True) for rej in (False, True)
 }
 THESIS_NAMES = {name: f"Config{i + 1}" for i, name in enumerate(CONFIGS)}
-WARM_UP_FRAMES = 40
+WARM_UP_FRAMES = 90
 # tracker presets of the vo package used as the base config of sequences with this prefix
 BASE_PRESETS = {"kitti": "kitti_10hz.toml"}
 # original C++ SDVL (shared data README; ORB matching on, TUM preset): frames tracked, ATE RMSE
@@ -43,6 +43,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "default: all eight)")
     parser.add_argument("--threaded", action="store_true", help="mapping in its own thread")
     parser.add_argument("--max-frames", type=int, default=None, metavar="N")
+    parser.add_argument("--warm-up", type=int, default=WARM_UP_FRAMES, metavar="N",
+                        help="first track N frames of the first sequence untimed, with every "
+                             f"stage on, so numba's compilation is not timed (default "
+                             f"{WARM_UP_FRAMES}; 0: none)")
     parser.add_argument("--json", action="store_true", help="one JSON object per row")
 
 
@@ -55,10 +59,13 @@ def run(args: argparse.Namespace) -> int:
     names = config_names(args.configs)
     if args.max_frames is not None and args.max_frames <= 0:
         raise InputError("--max-frames must be positive")
+    if args.warm_up < 0:
+        raise InputError("--warm-up must be 0 or more")
     sequences = [(name, resolve_sequence(name)) for name in args.sequences]
     if not args.json:
         print(header(), flush=True)
-    warm_up(sequences[0][1], track_sequence, TrackerConfig)
+    if args.warm_up > 0:
+        warm_up(sequences[0][1], track_sequence, TrackerConfig, args.warm_up)
     failed = 0
     for seq_name, sequence in sequences:
         for name in names:
@@ -80,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
-def warm_up(sequence, track_sequence, config_class, frames: int = WARM_UP_FRAMES) -> None:
+def warm_up(sequence, track_sequence, config_class, frames: int) -> None:
     """Track the first frames with every stage on (patches, then ORB), untimed, so numba's
     compilation or cache loading is not counted in the first row's times."""
     for matcher in ("patch", "orb"):
