@@ -9,29 +9,21 @@ from collections import Counter
 import cv2
 import numpy as np
 import pytest
-from vo_scenes import load_texture, look_down_pose, plane_depth, render_plane, small_camera
+from vo_scenes import pair_truth, sample_corners, textured_pair
 
 import vo.orb
 from calib.errors import InputError
 from sim.metrics import evaluate
 from sim.trajectory import Trajectory
 from vo.config import TrackerConfig
-from vo.frame import Frame
 from vo.matcher import match_epipolar
 from vo.orb import VALID, OrbQuery, describe, describe_levels, hamming, query
-from vo.se3 import inv_se3
 from vo.tracker import Tracker
 
 
 @pytest.fixture(scope="module")
 def pair(data_dir):
-    cam = small_camera()
-    tex = load_texture(data_dir, blur=1.0)
-    T_ref = look_down_pose(0.0, 0.0, 1.5)
-    T_cur = look_down_pose(0.12, 0.05, 1.3, yaw=0.15, tilt=(0.05, 0.0))
-    ref = Frame(0, 0.0, render_plane(tex, cam, T_ref), cam, 5)
-    cur = Frame(1, 1.0, render_plane(tex, cam, T_cur), cam, 5)
-    return cam, ref, cur, T_ref, T_cur @ inv_se3(T_ref)
+    return textured_pair(data_dir)
 
 
 def test_descriptors_are_opencv_orb_and_hamming_counts_bits():
@@ -113,13 +105,8 @@ def _epipolar_orb(cam, ref, cur, px, f, rho, T_cur_ref):
 
 def test_orb_epipolar_search_finds_the_true_corner(pair):
     cam, ref, cur, T_ref, T_cur_ref = pair
-    rc = ref.corners(10)
-    x0, y0 = rc.level0()
-    keep = (rc.level == 0) & cam.in_image(np.column_stack((x0, y0)), 30)
-    px = np.column_stack((x0[keep], y0[keep]))[::7][:40]
-    d = plane_depth(T_ref, cam, px)
-    f = cam.unproject(px)
-    true = cam.project((f * d[:, None]) @ T_cur_ref[:3, :3].T + T_cur_ref[:3, 3])
+    px = sample_corners(cam, ref)
+    f, d, true = pair_truth(cam, T_ref, T_cur_ref, px)
     visible = cam.in_image(true, 20)
     out, pending = _epipolar_orb(cam, ref, cur, px, f, 1.0 / d, T_cur_ref)
     assert pending[0] > 0 and pending[1] == 0  # one collecting pass was enough
