@@ -17,7 +17,7 @@ from sim.metrics import evaluate
 from sim.trajectory import Trajectory
 from vo.config import TrackerConfig
 from vo.matcher import match_epipolar
-from vo.orb import VALID, OrbQuery, describe, describe_levels, hamming, query
+from vo.orb import VALID, OrbQuery, describe, describe_levels, hamming, orientations, query
 from vo.tracker import Tracker
 
 
@@ -26,18 +26,46 @@ def pair(data_dir):
     return textured_pair(data_dir)
 
 
+def _texture(seed: int = 3) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return cv2.GaussianBlur(rng.integers(0, 255, (120, 160)).astype(np.uint8), (5, 5), 0)
+
+
 def test_descriptors_are_opencv_orb_and_hamming_counts_bits():
-    rng = np.random.default_rng(3)
-    img = cv2.GaussianBlur(rng.integers(0, 255, (120, 160)).astype(np.uint8), (3, 3), 0)
+    img = _texture()
     x = np.array([40.0, 80.0, 3.0, 150.0])
     y = np.array([50.0, 60.0, 60.0, 110.0])
     desc, state = describe(img, x, y)
     assert list(state) == [VALID, VALID, vo.orb.NONE, vo.orb.NONE]  # the last two: border
+    angle = orientations(img, x[:2], y[:2])
     orb = cv2.ORB_create(nlevels=1, edgeThreshold=vo.orb.EDGE, patchSize=31)
-    _, ref = orb.compute(img, [cv2.KeyPoint(40.0, 50.0, 31), cv2.KeyPoint(80.0, 60.0, 31)])
+    _, ref = orb.compute(img, [cv2.KeyPoint(40.0, 50.0, 31, angle[0]),
+                               cv2.KeyPoint(80.0, 60.0, 31, angle[1])])
     assert np.array_equal(desc[:2], ref)
     slow = sum(bin(int(a) ^ int(b)).count("1") for a, b in zip(desc[0], desc[1], strict=True))
     assert hamming(desc[0], desc[1]) == slow == cv2.norm(desc[0], desc[1], cv2.NORM_HAMMING)
+
+
+def test_orientation_is_the_intensity_centroid_and_follows_a_rotation():
+    img = _texture(4)
+    x, y = np.array([50.0, 77.4, 100.0]), np.array([40.0, 61.6, 80.0])
+    r = vo.orb.PATCH_SIZE // 2
+    for k, angle in enumerate(orientations(img, x, y)):  # slow reference
+        cx, cy = round(x[k]), round(y[k])
+        dv, du = np.mgrid[-r:r + 1, -r:r + 1]
+        disc = du ** 2 + dv ** 2 <= r * r + 0.5
+        patch = img[cy - r:cy + r + 1, cx - r:cx + r + 1].astype(float)
+        slow = np.degrees(np.arctan2((dv * patch)[disc].sum(), (du * patch)[disc].sum())) % 360
+        assert angle == pytest.approx(slow, abs=1e-9)
+    # the image turned by 90 degrees: orientations turn with it and descriptors still match
+    turned = np.ascontiguousarray(np.rot90(img))  # pixel (x, y) moves to (y, W - 1 - x)
+    xt, yt = y, img.shape[1] - 1 - x
+    assert (orientations(img, x, y) - orientations(turned, xt, yt)) % 360 == pytest.approx(
+        [90.0] * 3, abs=1e-6)
+    a, b = describe(img, x, y)[0], describe(turned, xt, yt)[0]
+    same = [hamming(a[k], b[k]) for k in range(3)]
+    other = [hamming(a[k], b[(k + 1) % 3]) for k in range(3)]
+    assert max(same) <= 10 and min(other) > 80
 
 
 def test_corner_descriptors_are_computed_once_and_shared(pair, monkeypatch):

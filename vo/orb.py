@@ -3,9 +3,9 @@
 Descriptors come from OpenCV's ORB (31-pixel patch) on keypoints we give it, so only the points
 being matched are described, and each is described once: a frame's FAST corners keep theirs
 (`CornerDescriptors`), map points keep theirs per pyramid level (the PointStore's `desc`
-columns). Descriptors are upright (keypoint angle 0): the pose prior of every search already
-removes most of the in-image rotation, and the cache needs descriptors that do not depend on
-the query. Matching kernels compare them by Hamming distance (accepted up to a threshold).
+columns). Keypoints are oriented by their intensity centroid as in ORB's oriented FAST, so a
+descriptor does not depend on the query and survives the camera rolling. Matching kernels
+compare them by Hamming distance (accepted up to a threshold).
 
 Kernels cannot call OpenCV, so a match runs in passes: a kernel pass marks the descriptors it
 is missing (`need` masks, `pending` count) and skips those comparisons; Python computes them
@@ -49,14 +49,39 @@ def describe(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarra
     state = np.full(n, NONE, dtype=np.int8)
     if n == 0:
         return desc, state
-    kps = [cv2.KeyPoint(float(a), float(b), PATCH_SIZE, 0.0, 0.0, 0, i)
-           for i, (a, b) in enumerate(zip(x, y, strict=True))]
+    angle = orientations(image, np.asarray(x, np.float64), np.asarray(y, np.float64))
+    kps = [cv2.KeyPoint(float(a), float(b), PATCH_SIZE, float(t), 0.0, 0, i)
+           for i, (a, b, t) in enumerate(zip(x, y, angle, strict=True))]
     kps, des = _extractor().compute(image, kps)
     if des is not None and len(kps):
         ids = np.array([k.class_id for k in kps], dtype=np.int64)
         desc[ids] = des
         state[ids] = VALID
     return desc, state
+
+
+@numba.njit(cache=True, nogil=True)
+def orientations(image, x, y):
+    """Keypoint orientation of ORB (oriented FAST): the direction, in degrees, from each point
+    (rounded to a pixel) to the intensity centroid of the disc of radius PATCH_SIZE // 2 around
+    it; 0 where the disc leaves the image. OpenCV's ORB computes this only for keypoints it
+    detects itself, so it is done here for the keypoints we give it."""
+    r = PATCH_SIZE // 2
+    h, w = image.shape
+    out = np.zeros(x.shape[0])
+    for k in range(x.shape[0]):
+        cx, cy = int(np.round(x[k])), int(np.round(y[k]))
+        if cx < r or cy < r or cx >= w - r or cy >= h - r:
+            continue
+        m10 = m01 = 0.0
+        for dv in range(-r, r + 1):
+            half = int(np.sqrt(r * r - dv * dv + 0.5))
+            for du in range(-half, half + 1):
+                value = float(image[cy + dv, cx + du])
+                m10 += du * value
+                m01 += dv * value
+        out[k] = np.degrees(np.arctan2(m01, m10)) % 360.0
+    return out
 
 
 def describe_levels(images: list[np.ndarray], u: np.ndarray, v: np.ndarray, need: np.ndarray,
