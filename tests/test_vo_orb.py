@@ -151,6 +151,11 @@ def test_config_selects_the_matcher():
     assert TrackerConfig.from_dict({"matcher": "orb"}).orb_max_distance == 100
     with pytest.raises(InputError, match="matcher"):
         TrackerConfig(matcher="sift")
+    # ORB tracking searches full-resolution corners too; patch tracking from its own level
+    assert TrackerConfig(matcher="orb").track_corner_level == 0
+    assert TrackerConfig().track_corner_level == TrackerConfig().track_search_min_level == 1
+    with pytest.raises(InputError, match="orb_track_min_level"):
+        TrackerConfig(orb_track_min_level=3)
 
 
 def test_tracker_with_orb_matching(data_dir, monkeypatch):

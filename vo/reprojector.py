@@ -188,8 +188,9 @@ class Reprojector:
         pyr = frame.pyr
         levels = config.pyramid_levels
         c = None
+        min_level = config.track_corner_level
         if search.any() or config.track_search_fallback or use_orb:
-            c = frame.corners(config.fast_threshold, config.track_search_min_level)
+            c = frame.corners(config.fast_threshold, min_level)
             corners = (c.x, c.y, c.xn, c.yn, c.row_start)
         else:
             corners = (np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0),
@@ -208,7 +209,7 @@ class Reprojector:
                 params, order, px, cell, frame.T_c_w, slot, ref_uv, ref_level, f, depth,
                 pts.rho[idx], pts.sigma[idx], search, kf_pyr, kf_T_c_w, pyr.offsets, pyr.widths,
                 pyr.heights, pyr.flat, corners, levels - 1,
-                (config.track_search_min_level, config.match_max_level),
+                (min_level, config.match_max_level),
                 config.max_matches - n_found, config.align2d_iterations,
                 config.epipolar_margin_px, config.zmssd_threshold,
                 config.track_search_fallback, done, tried, lookahead, orb.tables)

@@ -245,9 +245,9 @@ class Tracker:
     def _match(self, frame: Frame, timings: dict[str, float]) -> _Matches:
         """Map points matched in frame (pose prior set) and the pose refined from them."""
         cfg = self.config
-        if cfg.track_candidates or cfg.track_search_fallback:
+        if cfg.track_candidates or cfg.track_search_fallback or cfg.matcher == "orb":
             t0 = time.perf_counter()
-            frame.corners(cfg.fast_threshold, cfg.track_search_min_level)  # epipolar searches
+            frame.corners(cfg.fast_threshold, cfg.track_corner_level)  # searches among corners
             timings["corners"] = _ms(t0)
         t0 = time.perf_counter()
         ids, uv, levels, n_visible, n_attempts, attempted = self._reproject(frame)
