@@ -6,8 +6,11 @@ from the shared data README beside the real sequences."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
+
+import numpy as np
 
 from calib.errors import InputError
 
@@ -61,13 +64,14 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--max-frames must be positive")
     if args.warm_up < 0:
         raise InputError("--warm-up must be 0 or more")
-    sequences = [(name, resolve_sequence(name)) for name in args.sequences]
+    sequences = [(Path(name).name, resolve_sequence(name)) for name in args.sequences]
     if not args.json:
         print(header(), flush=True)
-    if args.warm_up > 0:
-        warm_up(sequences[0][1], track_sequence, TrackerConfig, args.warm_up)
     failed = 0
-    for seq_name, sequence in sequences:
+    for i, (seq_name, sequence) in enumerate(sequences):
+        sequence = in_memory(sequence, args.max_frames)
+        if i == 0 and args.warm_up > 0:
+            warm_up(sequence, track_sequence, TrackerConfig, args.warm_up)
         for name in names:
             config = TrackerConfig.from_dict({**base_parameters(seq_name), **CONFIGS[name]})
             try:
@@ -85,6 +89,15 @@ def run(args: argparse.Namespace) -> int:
             print(f"{seq_name:<26} {'original C++ (ORB)':<22} {tracked:>9} {ate:>11} "
                   f"{'':>4} {ms:>9}", flush=True)
     return 1 if failed else 0
+
+
+def in_memory(sequence, max_frames: int | None):
+    """The sequence with its frames read (or rendered) once and kept in memory, so every
+    configuration replays the same images without decoding or rendering them again."""
+    frames = list(sequence.frames(max_frames))
+    images = [image for _, image in frames]
+    return dataclasses.replace(sequence, timestamps=np.array([t for t, _ in frames]),
+                               image_loader=images.__getitem__, frame_iter=None)
 
 
 def warm_up(sequence, track_sequence, config_class, frames: int) -> None:
