@@ -245,9 +245,9 @@ class Tracker:
     def _match(self, frame: Frame, timings: dict[str, float]) -> _Matches:
         """Map points matched in frame (pose prior set) and the pose refined from them."""
         cfg = self.config
-        if cfg.track_candidates or cfg.track_search_fallback:
+        if cfg.track_candidates or cfg.track_search_fallback or cfg.matcher == "orb":
             t0 = time.perf_counter()
-            frame.corners(cfg.fast_threshold, cfg.track_search_min_level)  # epipolar searches
+            frame.corners(cfg.fast_threshold, cfg.track_corner_level)  # searches among corners
             timings["corners"] = _ms(t0)
         t0 = time.perf_counter()
         ids, uv, levels, n_visible, n_attempts, attempted = self._reproject(frame)
@@ -425,7 +425,8 @@ class Tracker:
         idx = np.flatnonzero(usable)
         search = pts.status[idx] == CANDIDATE
         return self.reprojector.run(self.camera.params, frame, pts, self.map.obs, idx, search,
-                                    self.map.kf_pyr, self.map.kf_T_c_w, cfg)
+                                    self.map.kf_pyr, self.map.kf_T_c_w, cfg,
+                                    self.map.describe_points)
 
     def _optimize(self, frame: Frame, ids: np.ndarray, uv: np.ndarray, levels: np.ndarray):
         """Pose refinement from matches; returns (T_c_w, H, sigma, per-match error)."""
