@@ -209,7 +209,7 @@ class Tracker:
         self.last = cur
         self.motion = np.eye(4)
         self.frames_since_kf = 0
-        self.kf_visible = n
+        self.kf_visible = 0  # the first tracked frame sets it (tracking matches fewer points)
         cur.n_visible = n
 
     def _track(self, frame: Frame, timings: dict[str, float]) -> tuple[FrameResult, bool]:
@@ -238,6 +238,10 @@ class Tracker:
         if keyframe:
             self.frames_since_kf = 0
             self.kf_visible = n_seen
+        else:
+            # the most points seen since the last keyframe: new points that join after a
+            # keyframe raise the reference, so their loss is noticed too
+            self.kf_visible = max(self.kf_visible, n_seen)
         result.T_w_c = frame.T_w_c
         result.covariance = pose_covariance(m.H, m.sigma, result.T_w_c)
         return result, keyframe
