@@ -17,6 +17,8 @@ from vo.se3 import orthonormalized
 
 LK_WINDOW = (21, 21)
 LK_LEVELS = 3
+# a rotation alone explains the tracks when this fraction of them is within init_ransac_px
+ROTATION_ONLY_FRACTION = 0.9
 
 
 @dataclass
@@ -92,6 +94,12 @@ def pose_from_essential(x1: np.ndarray, x2: np.ndarray, threshold: float, seed: 
     return R, t.ravel() / np.linalg.norm(t), pose_mask.ravel().astype(bool)
 
 
+def rotation_between(f_ref: np.ndarray, f_cur: np.ndarray) -> np.ndarray:
+    """The rotation R minimising sum |f_cur - R f_ref|^2 over unit bearings (Kabsch)."""
+    U, _, Vt = np.linalg.svd(f_ref.T @ f_cur)
+    return Vt.T @ np.diag([1.0, 1.0, np.linalg.det(Vt.T @ U.T)]) @ U.T
+
+
 def two_view_pose(x1: np.ndarray, x2: np.ndarray, threshold: float, seed: int,
                   homography_ratio: float):
     """The homography solution, unless the essential matrix explains clearly more points
@@ -145,6 +153,25 @@ class Initializer:
             return None
         result = self._two_view()
         return "restart" if result is None else result
+
+    def rotation_only(self) -> tuple[np.ndarray, float] | None:
+        """(R_cur_ref, rms residual in px) while the tracks show no parallax: a rotation alone
+        moves ROTATION_ONLY_FRACTION of them to within init_ransac_px of where they are. The
+        camera may still have moved, but too little to see against the scene (less than about
+        init_ransac_px / focal of the scene depth); None once parallax shows."""
+        if self.ref is None or len(self.px_ref) < self.config.init_min_tracked:
+            return None
+        f_ref = self.camera.unproject(self.px_ref)
+        f_cur = self.camera.unproject(self.px_cur)
+        focal = float(np.sqrt(self.camera.fx * self.camera.fy))
+        inl = np.ones(len(f_ref), dtype=bool)
+        for _ in range(2):  # fit on all tracks, then again on those the first fit explains
+            R = rotation_between(f_ref[inl], f_cur[inl])
+            err = np.linalg.norm(f_ref @ R.T - f_cur, axis=1) * focal
+            inl = err < self.config.init_ransac_px
+            if inl.mean() < ROTATION_ONLY_FRACTION:
+                return None
+        return R, float(np.sqrt(np.mean(err[inl] ** 2)))
 
     def _two_view(self) -> InitialMap | None:
         f_ref = self.camera.unproject(self.px_ref)
