@@ -19,6 +19,10 @@ LK_WINDOW = (21, 21)
 LK_LEVELS = 3
 # a rotation alone explains the tracks when this fraction of them is within init_ransac_px
 ROTATION_ONLY_FRACTION = 0.9
+# two homography decompositions are a tie when their Sampson errors differ by less than
+# TIE_RATIO, or both are within TIE_FRACTION of the inlier threshold (rms)
+TIE_RATIO = 1.5
+TIE_FRACTION = 0.25
 
 
 @dataclass
@@ -66,19 +70,27 @@ def pose_from_homography(x1: np.ndarray, x2: np.ndarray, threshold: float, seed:
     valid = cv2.filterHomographyDecompByVisibleRefpoints(
         Rs, ns, x1[inl].reshape(-1, 1, 2).astype(np.float32),
         x2[inl].reshape(-1, 1, 2).astype(np.float32))
-    candidates = range(len(Rs)) if valid is None else valid.ravel()
-    best, best_err = None, np.inf
-    for i in candidates:
+    scored = []
+    for i in range(len(Rs)) if valid is None else valid.ravel():
         R, t = Rs[i], ts[i].ravel()
         if np.linalg.norm(t) < 1e-12:
             continue
         tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
-        err = float(np.sum(sampson_error(tx @ R, x1[inl], x2[inl])))
-        if err < best_err:
-            best, best_err = (R, t / np.linalg.norm(t)), err
-    if best is None:
+        scored.append((float(np.sum(sampson_error(tx @ R, x1[inl], x2[inl]))),
+                       -abs(float(ns[i].ravel()[2])), R, t / np.linalg.norm(t)))
+    if not scored:
         return None
-    return best[0], best[1], inl
+    scored.sort(key=lambda c: c[0])
+    noise = inl.sum() * (TIE_FRACTION * threshold) ** 2  # both fit to a fraction of the threshold
+    if len(scored) > 1 and scored[1][0] < TIE_RATIO * scored[0][0] + noise:
+        # a plane seen from two views: the true solution and the one with the plane normal
+        # and the motion swapped explain the points equally well (the Sampson errors are
+        # noise); that happens when the camera moves close to the plane normal (a drone
+        # climbing over the ground). Prefer the plane that faces the camera: the wrong
+        # choice tilts the whole map by the angle between motion and normal.
+        scored[:2] = sorted(scored[:2], key=lambda c: c[1])
+    _, _, R, t = scored[0]
+    return R, t, inl
 
 
 def pose_from_essential(x1: np.ndarray, x2: np.ndarray, threshold: float, seed: int):
