@@ -69,7 +69,7 @@ class Tracker:
         self.lost_init: Initializer | None = None  # a new map, built while relocalising
         self.view_since: int | None = None  # lost, and the view usable since this frame id
         self.frames_since_kf = 0
-        self.kf_visible = 0
+        self.kf_visible: int | None = None  # points seen at the last keyframe
         if self.threaded:
             self._queue = queue.Queue(maxsize=cfg.mapping_queue_size)
             self._thread = threading.Thread(target=self._mapping_loop, name="sdvl-mapping",
@@ -237,7 +237,9 @@ class Tracker:
         self.last = cur
         self.motion = np.eye(4)
         self.frames_since_kf = 0
-        self.kf_visible = 0  # the first tracked frame sets it (tracking matches fewer points)
+        # the first tracked frame sets it: the initial map's count (all LK tracks) is not
+        # comparable with a tracked frame's (at most one match per grid cell)
+        self.kf_visible = None
         cur.n_visible = n
 
     def _track(self, frame: Frame, timings: dict[str, float]) -> tuple[FrameResult, bool]:
@@ -262,14 +264,12 @@ class Tracker:
         self.last = frame
         self.frames_since_kf += 1
         n_seen = int(m.inlier.sum()) if cfg.kf_count_inliers else m.n_visible
+        if self.kf_visible is None:
+            self.kf_visible = n_seen
         keyframe = quality == "good" and self._need_keyframe(n_seen)
         if keyframe:
             self.frames_since_kf = 0
             self.kf_visible = n_seen
-        else:
-            # the most points seen since the last keyframe: new points that join after a
-            # keyframe raise the reference, so their loss is noticed too
-            self.kf_visible = max(self.kf_visible, n_seen)
         result.T_w_c = frame.T_w_c
         result.covariance = pose_covariance(m.H, m.sigma, result.T_w_c)
         return result, keyframe
