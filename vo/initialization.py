@@ -161,8 +161,8 @@ class Initializer:
         if len(self.px_ref) < self.config.init_min_tracked:
             return "restart"
         shift = np.linalg.norm(self.px_cur - self.px_ref, axis=1)
-        if np.mean(shift) < self.config.init_min_disparity_px:
-            return None
+        if np.mean(shift) < self.config.init_min_disparity_px or self.rotation_only() is not None:
+            return None  # too little shift, or a shift a rotation alone explains: no parallax
         result = self._two_view()
         return "restart" if result is None else result
 
