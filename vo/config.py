@@ -76,8 +76,11 @@ class TrackerConfig:
     lost_points_ratio: float = 0.3
     # also a keyframe (after kf_min_frames) while fewer points than this are seen
     kf_min_points: int = 50
-    # count the points seen as the frame's inlier matches (else: map points projecting inside)
-    kf_count_inliers: bool = False
+    # count the points seen as the frame's inlier matches (as the original SDVL does), else as
+    # the map points projecting inside the image: those stay "visible" while the camera climbs
+    # along its optical axis, but they crowd into fewer grid cells (one match per cell), so the
+    # matches fall and no keyframe comes
+    kf_count_inliers: bool = True
     max_keyframes: int = 30
     covisible_min_shared: int = 10
     mapping_queue_size: int = 4
