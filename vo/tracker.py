@@ -238,6 +238,10 @@ class Tracker:
         if keyframe:
             self.frames_since_kf = 0
             self.kf_visible = n_seen
+        else:
+            # the reference is the most points seen since the keyframe (6.6): the keyframe's
+            # own new candidates only become visible from the next frame on
+            self.kf_visible = max(self.kf_visible, n_seen)
         result.T_w_c = frame.T_w_c
         result.covariance = pose_covariance(m.H, m.sigma, result.T_w_c)
         return result, keyframe
