@@ -234,14 +234,14 @@ class Tracker:
         self.last = frame
         self.frames_since_kf += 1
         n_seen = int(m.inlier.sum()) if cfg.kf_count_inliers else m.n_visible
+        if self.frames_since_kf <= cfg.candidate_min_updates + 1:
+            # the points seen with the last keyframe (6.6) include its new candidates, which
+            # tracking uses once they have had candidate_min_updates depth updates
+            self.kf_visible = max(self.kf_visible, n_seen)
         keyframe = quality == "good" and self._need_keyframe(n_seen)
         if keyframe:
             self.frames_since_kf = 0
             self.kf_visible = n_seen
-        else:
-            # the reference is the most points seen since the keyframe (6.6): the keyframe's
-            # own new candidates only become visible from the next frame on
-            self.kf_visible = max(self.kf_visible, n_seen)
         result.T_w_c = frame.T_w_c
         result.covariance = pose_covariance(m.H, m.sigma, result.T_w_c)
         return result, keyframe
