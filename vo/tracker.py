@@ -232,16 +232,8 @@ class Tracker:
         self._accept(frame, m)
         self.motion = frame.T_c_w @ inv_se3(last.T_c_w)
         self.last = frame
-        self.frames_since_kf += 1
         n_seen = int(m.inlier.sum()) if cfg.kf_count_inliers else m.n_visible
-        if self.frames_since_kf <= cfg.candidate_min_updates + 1:
-            # the points seen with the last keyframe (6.6) include its new candidates, which
-            # tracking uses once they have had candidate_min_updates depth updates
-            self.kf_visible = max(self.kf_visible, n_seen)
-        keyframe = quality == "good" and self._need_keyframe(n_seen)
-        if keyframe:
-            self.frames_since_kf = 0
-            self.kf_visible = n_seen
+        keyframe = self._keyframe_due(n_seen, quality == "good")
         result.T_w_c = frame.T_w_c
         result.covariance = pose_covariance(m.H, m.sigma, result.T_w_c)
         return result, keyframe
@@ -325,6 +317,22 @@ class Tracker:
         hopeless = (pts.n_missed[missed] > cfg.point_max_missed) & (
             pts.n_missed[missed] > 2 * pts.n_found[missed])
         pts.delete(missed[hopeless])
+
+    def _keyframe_due(self, n_seen: int, good: bool) -> bool:
+        """Count a tracked frame that sees n_seen map points; True when it becomes a keyframe
+        (only a good frame can). The points "seen when the keyframe was made" (6.6) include
+        its new candidates, which tracking uses only after candidate_min_updates depth
+        updates: until then the reference is the most points seen since the keyframe (else
+        a keyframe taken with few points keeps the reference low and the next one comes too
+        late: kitti00 turned for 20 frames without one and lost the map)."""
+        self.frames_since_kf += 1
+        if self.frames_since_kf <= self.config.candidate_min_updates + 1:
+            self.kf_visible = max(self.kf_visible, n_seen)
+        if not (good and self._need_keyframe(n_seen)):
+            return False
+        self.frames_since_kf = 0
+        self.kf_visible = n_seen
+        return True
 
     def _need_keyframe(self, n_seen: int) -> bool:
         """Keyframe policy of 6.6: enough frames and points lost, or too many points lost."""
