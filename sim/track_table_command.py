@@ -13,9 +13,9 @@ from calib.errors import InputError
 DEFAULT_SEQUENCES = ("vamr_ex01_checkerboard736", "kitti00_first200", "tum_fr1_rpy")
 # the thesis' configuration axes available here (ORB matching is not implemented)
 CONFIGS = {
-    "patch": {},
+    "patch": {"outlier_rejection": False},
     "patch+rej": {"outlier_rejection": True},
-    "patch+ba": {"local_ba": True},
+    "patch+ba": {"local_ba": True, "outlier_rejection": False},
     "patch+ba+rej": {"local_ba": True, "outlier_rejection": True},
 }
 # tracker presets of the vo package used as the base config of sequences with this prefix
