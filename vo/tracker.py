@@ -69,6 +69,9 @@ class Tracker:
         self.view_since: int | None = None  # lost, and the view usable since this frame id
         self.frames_since_kf = 0
         self.kf_visible = 0
+        # frames tracked since the mapper last added a keyframe (and its new candidates)
+        self.frames_since_mapped_kf = 0
+        self.mapped_keyframes = 0
         if self.threaded:
             self._queue = queue.Queue(maxsize=cfg.mapping_queue_size)
             self._thread = threading.Thread(target=self._mapping_loop, name="sdvl-mapping",
@@ -321,12 +324,16 @@ class Tracker:
     def _keyframe_due(self, n_seen: int, good: bool) -> bool:
         """Count a tracked frame that sees n_seen map points; True when it becomes a keyframe
         (only a good frame can). The points "seen when the keyframe was made" (6.6) include
-        its new candidates, which tracking uses only after candidate_min_updates depth
-        updates: until then the reference is the most points seen since the keyframe (else
-        a keyframe taken with few points keeps the reference low and the next one comes too
-        late: kitti00 turned for 20 frames without one and lost the map)."""
+        its new candidates, which tracking uses once the mapper has added them and updated
+        them candidate_min_updates times: until then the reference is the most points seen
+        (else a keyframe taken with few points keeps the reference low and the next one comes
+        too late: kitti00 turned for 20 frames without one and lost the map)."""
         self.frames_since_kf += 1
-        if self.frames_since_kf <= self.config.candidate_min_updates + 1:
+        if self.mapper.n_keyframes_added != self.mapped_keyframes:  # threaded: maybe later
+            self.mapped_keyframes = self.mapper.n_keyframes_added
+            self.frames_since_mapped_kf = 0
+        self.frames_since_mapped_kf += 1
+        if self.frames_since_mapped_kf <= self.config.candidate_min_updates + 1:
             self.kf_visible = max(self.kf_visible, n_seen)
         if not (good and self._need_keyframe(n_seen)):
             return False
