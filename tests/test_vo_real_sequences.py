@@ -1,5 +1,5 @@
-"""Whole real sequences through the tracker (sequential mode, default parameters): VAMR and
-KITTI 00 accuracy, TUM fr1/rpy runs to the end with every frame accounted for."""
+"""Whole real sequences through the tracker (sequential mode): VAMR and KITTI 00 (its preset)
+accuracy, TUM fr1/rpy runs to the end with every frame accounted for."""
 
 from __future__ import annotations
 
@@ -10,12 +10,15 @@ import numpy as np
 from sim.datasets import open_sequence
 from sim.metrics import evaluate
 from sim.trajectory import Trajectory
+from vo.config import TrackerConfig
 from vo.tracker import Tracker
 
+PRESETS = Path(__file__).resolve().parents[1] / "vo" / "presets"
 
-def _track(path: Path):
+
+def _track(path: Path, config: TrackerConfig | None = None):
     seq = open_sequence(path)
-    tracker = Tracker(seq.camera)
+    tracker = Tracker(seq.camera, config)
     t, T, qualities, segments = [], [], [], 0
     for stamp, image in seq.frames():
         r = tracker.process(image, stamp)
@@ -41,9 +44,10 @@ def test_tum_rpy_runs_through(data_dir):
     assert segments >= 1 and len(est) >= 0.8 * 723
 
 
-def test_kitti_defaults_meet_the_acceptance(data_dir):
+def test_kitti_with_its_preset_meets_the_acceptance(data_dir):
     # forward motion and a 90-degree turn: one map segment through the whole sequence
-    seq, est, qualities, segments = _track(data_dir / "kitti00_first200")
+    config = TrackerConfig.from_toml(PRESETS / "kitti_10hz.toml")
+    seq, est, qualities, segments = _track(data_dir / "kitti00_first200", config)
     assert len(qualities) == 200
     assert len(est) >= 0.9 * 200 and segments == 1
     assert evaluate(seq.groundtruth, est, "sim3").ate_rmse_m <= 3.0

@@ -42,10 +42,8 @@ class TrackerConfig:
 
     # outlier rejection (6.8): RANSAC over 5-point subsets of the matches, inliers within
     # ransac_threshold_px (at the match's level), hypotheses for ransac_probability at most
-    # ransac_max_hypotheses; then outliers within ransac_rescue_px of the inlier pose rejoin.
-    # On by default as in the original: without it kitti00 drifts (ATE 10.5 m instead of
-    # 0.9 m) because wrong epipolar matches agree with a drifting pose
-    outlier_rejection: bool = True
+    # ransac_max_hypotheses; then outliers within ransac_rescue_px of the inlier pose rejoin
+    outlier_rejection: bool = False
     ransac_threshold_px: float = 2.0
     ransac_rescue_px: float = 4.0
     ransac_probability: float = 0.99
