@@ -119,3 +119,19 @@ def test_rotation_only_while_no_parallax(data_dir):
     moved = Frame(9, 9.0, render_plane(tex, cam, look_down_pose(0.075, 0.0, 1.5)), cam, 5)
     init.add(moved)
     assert init.rotation_only() is None
+
+
+def test_at_rest_only_while_the_tracks_stay_put(data_dir):
+    """Poses before the map need the camera at rest: a small sideways move over the plane
+    (tracks shifted by several pixels, which a turn could explain as well) is not rest."""
+    cam = small_camera()
+    tex = load_texture(data_dir)
+    init = Initializer(cam, TrackerConfig())
+    still = look_down_pose(0.0, 0.0, 1.5)
+    assert init.set_reference(Frame(0, 0.0, render_plane(tex, cam, still), cam, 5))
+    init.add(Frame(1, 1.0, render_plane(tex, cam, still), cam, 5))
+    assert init.at_rest()
+    moved = look_down_pose(0.03, 0.0, 1.5)
+    init.add(Frame(2, 2.0, render_plane(tex, cam, moved), cam, 5))
+    shift = np.median(np.linalg.norm(init.px_cur - init.px_ref, axis=1))
+    assert shift > TrackerConfig().init_ransac_px and not init.at_rest()

@@ -161,10 +161,18 @@ class Initializer:
         if len(self.px_ref) < self.config.init_min_tracked:
             return "restart"
         shift = np.linalg.norm(self.px_cur - self.px_ref, axis=1)
-        if np.mean(shift) < self.config.init_min_disparity_px or self.rotation_only() is not None:
-            return None  # too little shift, or a shift a rotation alone explains: no parallax
+        if np.mean(shift) < self.config.init_min_disparity_px:
+            return None
         result = self._two_view()
         return "restart" if result is None else result
+
+    def at_rest(self) -> bool:
+        """True while the tracks have moved less than init_ransac_px (median) since the
+        reference: neither a turn nor a move of the camera shows yet."""
+        if self.ref is None or len(self.px_ref) == 0:
+            return False
+        shift = np.linalg.norm(self.px_cur - self.px_ref, axis=1)
+        return bool(np.median(shift) < self.config.init_ransac_px)
 
     def rotation_only(self) -> tuple[np.ndarray, float] | None:
         """(R_cur_ref, rms residual in px) while the tracks show no parallax: a rotation alone

@@ -165,13 +165,16 @@ class Tracker:
 
     def _pose_before_map(self, frame: Frame, is_reference: bool) -> FrameResult:
         """Before the map exists, the pose relative to the initialiser's reference (the future
-        map's world frame) while no parallax shows: the reference itself, and the rotation
-        that explains the tracks with the camera still at the reference's position (a
-        translation too small to see; its covariance says how small). Quality insufficient:
-        no keyframe, no map."""
+        map's world frame) while the camera is at rest: the rotation that explains the tracks
+        with the camera still at the reference's position (a translation too small to see;
+        its covariance says how small). Only while the tracks have hardly moved at all: a
+        sideways move over a distant flat scene shifts them like a turn does, so a rotation fit
+        would hide it (survey-down: 0.32 m in 23 frames at a fixed position). The reference
+        itself gets no pose: the initialiser may still replace it, and each posed reference
+        would be a new map segment. Quality insufficient: no keyframe, no map."""
         init = self.initializer
-        found = (np.eye(3), 0.0) if is_reference else init.rotation_only()
-        if init.ref is None or found is None:
+        found = None if is_reference or not init.at_rest() else init.rotation_only()
+        if found is None:
             return FrameResult(frame.t, None, "initializing")
         R_cur_ref, rms = found
         T_w_c = np.eye(4)
