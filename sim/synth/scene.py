@@ -131,13 +131,16 @@ class Walker:
 class Scene:
     """Static quads, moving objects and the textures they use; `background` is the grey level
     of rays that hit nothing; `detail` (texture, frequency factor, amplitude) adds fine
-    structure to surfaces seen closer than one texel per pixel."""
+    structure to surfaces seen closer than one texel per pixel; `overlay` (base texture,
+    overlay texture, scale, angle rad, weight) blends a second, scaled and turned texture into
+    every quad of the base texture (an aperiodic ground)."""
 
     quads: QuadList
     atlas: TextureAtlas
     movers: list = field(default_factory=list)
     background: float = 128.0
     detail: tuple[int, float, float] | None = None
+    overlay: tuple[int, int, float, float, float] | None = None
     height_at: Callable | None = None
 
     def quads_at(self, t: float) -> QuadList:
