@@ -16,6 +16,7 @@ from calib.errors import InputError
 from daemon.camera import FrameSource, OpenCVSource, SequenceSource, TestPatternSource
 from daemon.config import CameraConfig, Config, load_config
 from daemon.frames import Frame
+from daemon.recordings import open_recording
 from daemon.service import Service
 
 
@@ -36,10 +37,7 @@ def open_source(cfg: CameraConfig) -> FrameSource:
     if cfg.source == "testpattern":
         return TestPatternSource(cfg.width or 320, cfg.height or 240, cfg.fps)
     if Path(cfg.source).is_dir():
-        # dataset folders are read by the replay side of the same distribution (sim.datasets)
-        from sim.datasets import open_sequence
-
-        return SequenceSource(open_sequence(cfg.source), realtime=cfg.realtime)
+        return SequenceSource(open_recording(cfg.source, cfg.fps), realtime=cfg.realtime)
     return OpenCVSource(cfg.source, cfg.width, cfg.height, cfg.fps, cfg.realtime)
 
 

@@ -185,6 +185,7 @@ class Service:
             sent = self._send_estimate(tf.estimate)
         if self.on_tracked is not None:
             self.on_tracked(tf, sent)
+        self.tracking.gate.done(tf.t_source)  # the tracker's mapping may go on with this frame
 
     def _send_estimate(self, e: VisionEstimate) -> bool:
         """Send the vision message(s) for one estimate unless it is a duplicate, too soon

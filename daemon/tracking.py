@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -12,6 +13,7 @@ from daemon.estimate import Estimator, VisionEstimate
 from daemon.frames import Frame, LatestSlot
 
 log = logging.getLogger("sdvl.tracking")
+HANDOFF_WAIT_S = 0.05  # the mapping thread waits at most this long for a frame's handoff
 
 
 @dataclass(frozen=True)
@@ -28,6 +30,30 @@ class TrackedFrame:
     t_done: float  # monotonic time the estimate was ready
 
 
+class HandoffGate:
+    """Holds the tracker's mapping thread back from a frame's mapping step until the loop has
+    handled that frame's estimate. Mapping is background work; started the moment tracking
+    hands it the frame, it takes the GIL and a core from the estimator, the handoff to the loop
+    and the send, which are what the autopilot waits for. The wait is bounded, so a slow or
+    stopped loop never stalls mapping."""
+
+    def __init__(self, timeout_s: float = HANDOFF_WAIT_S):
+        self.timeout_s = timeout_s
+        self._cond = threading.Condition()
+        self._done_t = -math.inf
+
+    def done(self, t_source: float) -> None:
+        """The loop has handled the frame with this source time (and all before it)."""
+        with self._cond:
+            self._done_t = max(self._done_t, t_source)
+            self._cond.notify_all()
+
+    def wait(self, frame: object) -> None:
+        """Block until the frame (a vo Frame, `.t` its source time) was handled."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._done_t >= frame.t, self.timeout_s)
+
+
 class TrackingThread(threading.Thread):
     """Runs the tracker on the newest frames; the tracker is built on the first frame (its
     size fixes the camera model) by `make_tracker(frame)`."""
@@ -39,6 +65,7 @@ class TrackingThread(threading.Thread):
         self.slot, self.make_tracker, self.estimator = slot, make_tracker, estimator
         self.deliver, self.on_end = deliver, on_end
         self.stopping = threading.Event()
+        self.gate = HandoffGate()
         self.tracker = None
         self.error: BaseException | None = None
 
@@ -62,6 +89,7 @@ class TrackingThread(threading.Thread):
                 continue
             if self.tracker is None:
                 self.tracker = self.make_tracker(frame)
+            self._gate_mapping()
             t_start = time.monotonic()
             start = time.perf_counter()
             result = self.tracker.process(frame.image, frame.t_source)
@@ -69,6 +97,13 @@ class TrackingThread(threading.Thread):
             estimate = self.estimator.on_frame(result, frame.t_capture)
             self.deliver(TrackedFrame(frame.index, frame.t_source, frame.t_capture, result,
                                       estimate, t_start, track_s, time.monotonic()))
+
+    def _gate_mapping(self) -> None:
+        """Put the handoff gate on the tracker's mapping thread (again after a new map, which
+        comes with a new mapper); inline mapping runs in this thread and is not gated."""
+        mapper = getattr(self.tracker, "mapper", None)
+        if getattr(self.tracker, "threaded", False) and mapper.before_step != self.gate.wait:
+            mapper.before_step = self.gate.wait
 
     def stop(self) -> None:
         """Finish after the frame in hand."""

@@ -4,6 +4,11 @@ Runs the whole service (real tracker, capture thread, asyncio link) at the camer
 the simulated autopilot over UDP loopback and prints, per stage, the median, p95 and p99 in
 milliseconds: waiting for the tracker, tracking, capture-to-send and capture-to-arrival at the
 autopilot. The target: capture-to-send p99 within 5 ms of the tracking p99 at 30 fps.
+
+A sequence is played in real time like `sdvl replay --realtime` plays it (tracker warmed up first,
+the autopilot flying the sequence's ground truth, the estimator `sdvl replay` picks: fusion for
+synthetic flights, pass-through for hand-held datasets). The built-in test pattern uses the
+pass-through: fusion needs autopilot sensors that move with the picture.
 """
 
 from __future__ import annotations
@@ -13,11 +18,12 @@ import asyncio
 import json
 import time
 
-from daemon.camera import SequenceSource, TestPatternSource
+from daemon.camera import TestPatternSource
 from daemon.config import Config, load_config, replace
 from daemon.run_command import camera_model, setup_logging, tracker_factory
 from daemon.service import Service
-from sim.replay.autopilot_process import AutopilotProcess
+from sim.replay.autopilot_process import AutopilotProcess, VisionMessage
+from sim.replay.harness import choose_estimator, run_replay
 from sim.replay.recording import Recorder, stats_ms
 
 TARGET_MS = 5.0
@@ -26,11 +32,14 @@ TARGET_MS = 5.0
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of `sdvl bench-latency`."""
     parser.add_argument("--sequence", default=None,
-                        help="sequence folder or video played in real time (default: the "
-                             "built-in test pattern)")
+                        help="sequence folder, video, name in the shared data ($SDVL_DATA) or "
+                             "synthetic preset, played in real time (default: the built-in "
+                             "test pattern)")
     parser.add_argument("--fps", type=float, default=30.0,
                         help="test-pattern frame rate (default 30)")
-    parser.add_argument("--frames", type=int, default=600, help="frames to measure (default 600)")
+    parser.add_argument("--frames", type=int, default=600,
+                        help="frames to measure after the warm-up (default 600; a sequence "
+                             "offers at most this many plus the warm-up)")
     parser.add_argument("--warmup", type=int, default=30,
                         help="first frames left out (compilation, map start; default 30)")
     parser.add_argument("--config", default=None, help="service config (tracker, mounting)")
@@ -48,15 +57,19 @@ async def measure(service: Service, recorder: Recorder, frames: int) -> None:
     await task
 
 
-def report(recorder: Recorder, received: list, warmup: int, service: Service) -> dict:
-    """The numbers, frames after the warm-up only."""
-    rows = recorder.rows[warmup:]
+def report(rows: list[dict], received: list[VisionMessage], warmup: int, dropped: int,
+           estimator: str) -> dict:
+    """The numbers from the Recorder rows of the processed frames and what the autopilot
+    received, frames after the warm-up only."""
+    rows = rows[warmup:]
     first = rows[0]["t_capture"] if rows else float("inf")
-    arrivals = [arrival - stamp for stamp, arrival in received if stamp >= first]
+    stamps = [(m.fields["time_usec"] / 1e6, m.t_arrival) for m in received
+              if m.kind in ("ODOMETRY", "VISION_POSITION_ESTIMATE")]
+    arrivals = [arrival - stamp for stamp, arrival in stamps if stamp >= first]
     sent = [r for r in rows if r["sent"]]
     out = {
-        "frames": len(rows), "sent": len(sent),
-        "dropped_by_capture": service.capture.slot.dropped if service.capture else 0,
+        "estimator": estimator, "frames": len(rows), "sent": len(sent),
+        "dropped_by_capture": dropped,
         "wait_for_tracker_ms": stats_ms([r["wait"] for r in rows]),
         "tracking_ms": stats_ms([r["track"] for r in rows]),
         "tracking_of_sent_ms": stats_ms([r["track"] for r in sent]),
@@ -74,8 +87,9 @@ def report(recorder: Recorder, received: list, warmup: int, service: Service) ->
 
 
 def print_report(r: dict) -> None:
-    print(f"frames measured {r['frames']}, vision messages sent {r['sent']}, "
-          f"dropped by capture {r['dropped_by_capture']} (whole run, warm-up included)")
+    print(f"estimator {r['estimator']}: frames measured {r['frames']}, vision messages sent "
+          f"{r['sent']}, dropped by capture {r['dropped_by_capture']} (whole run, warm-up "
+          "included)")
     print(f"{'stage':28} {'median':>8} {'p95':>8} {'p99':>8}   ms")
     for key in ("wait_for_tracker_ms", "tracking_ms", "tracking_of_sent_ms",
                 "capture_to_send_ms", "service_overhead_ms", "estimator_ms",
@@ -91,20 +105,39 @@ def print_report(r: dict) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Entry point of `sdvl bench-latency`."""
+    from sim.track_command import resolve_sequence
+
     config = load_config(args.config) if args.config else Config()
     setup_logging("warning")
+    if args.inline_mapping:
+        config = replace(config, service={"mapping_thread": False})
     if args.sequence:
-        from sim.datasets import open_sequence
-
-        source = SequenceSource(open_sequence(args.sequence), realtime=True)
+        sequence = resolve_sequence(args.sequence)
+        config = choose_estimator(config, sequence, "auto")
+        replay = run_replay(sequence, config, True, args.frames + args.warmup, progress=False)
+        result = report(replay.rows, replay.received, args.warmup,
+                        replay.offered - len(replay.rows), _estimator(config))
     else:
-        source = TestPatternSource(320, 240, args.fps)
+        result = bench_test_pattern(replace(config, fusion={"enabled": False}), args)
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        print_report(result)
+    return 0
+
+
+def _estimator(config: Config) -> str:
+    return "fusion" if config.fusion.enabled else "pass-through"
+
+
+def bench_test_pattern(config: Config, args: argparse.Namespace) -> dict:
+    """The service on the built-in test pattern at args.fps until args.frames + args.warmup
+    frames were processed."""
+    source = TestPatternSource(320, 240, args.fps)
     autopilot = AutopilotProcess()
     try:
         config = replace(config, mavlink={"link": autopilot.url, "output": "odometry"},
                          camera={"source": "testpattern", "calibration": ""})
-        if args.inline_mapping:
-            config = replace(config, service={"mapping_thread": False})
         make_tracker = tracker_factory(config, camera_model(config.camera, source))
         recorder = Recorder()
         service = Service(config, source, make_tracker, on_tracked=recorder)
@@ -112,11 +145,5 @@ def run(args: argparse.Namespace) -> int:
         time.sleep(0.2)
     finally:
         received = autopilot.finish()
-    odometry = [(m.fields["time_usec"] / 1e6, m.t_arrival) for m in received
-                if m.kind == "ODOMETRY"]
-    result = report(recorder, odometry, args.warmup, service)
-    if args.json:
-        print(json.dumps(result, indent=2))
-    else:
-        print_report(result)
-    return 0
+    return report(recorder.rows, received, args.warmup, service.capture.slot.dropped,
+                  _estimator(config))

@@ -116,7 +116,11 @@ class TrackerOptions:
 
     fps: float = 30.0
     start_s: float = 1.5
-    scale: float = 0.27  # VO units per metre
+    # a new map's scale, like the real tracker's (vo init_map_depth): its median scene depth, the
+    # camera's height over the flat ground, is map_depth units (later maps: up to a log-normal
+    # error)
+    map_depth: float = 1.0
+    map_depth_error: float = 0.1
     noise_m: float = 0.02
     drift_per_sqrt_m: float = 0.01
     scale_walk_per_sqrt_s: float = 0.002
@@ -136,6 +140,7 @@ class Flight:
     truth: Truth
     messages: list = field(default_factory=list)  # (arrival, msg)
     frames: list = field(default_factory=list)  # (ready time, FrameResult, t_capture)
+    map_scales: list = field(default_factory=list)  # VO units per metre of each map, at start
 
 
 def autopilot_messages(truth: Truth, opt: SensorOptions, rng: np.random.Generator) -> list:
@@ -196,12 +201,14 @@ def _random_rotation(rng: np.random.Generator) -> np.ndarray:
 
 
 def tracker_results(truth: Truth, opt: TrackerOptions, mounting: MountingConfig,
-                    rng: np.random.Generator) -> list:
+                    rng: np.random.Generator, scales: list | None = None) -> list:
     """(ready time, FrameResult, t_capture) at the tracker's frame rate. The tracker integrates
     the true motion in its own frame and scale, with random-walk drift of position (per metre),
-    scale and rotation (per second), plus white noise on every pose."""
+    scale and rotation (per second), plus white noise on every pose. The scale of each new map
+    (VO units per metre) is appended to `scales`."""
     R_b_c = body_from_camera(mounting)
     out, last_p, seg, dt = [], None, None, 1.0 / opt.fps
+    scales = [] if scales is None else scales
     for t in np.arange(opt.start_s, truth.t[-1], dt):
         i = truth.at(t)
         t_capture = t + BOOT_OFFSET
@@ -211,8 +218,11 @@ def tracker_results(truth: Truth, opt: TrackerOptions, mounting: MountingConfig,
             continue
         new = seg is None
         if new:
+            depth = CAMERA_HEIGHT - truth.p[i, 2]
+            error = rng.normal(0, opt.map_depth_error) if out else 0.0
             seg = {"R_w_n": _random_rotation(rng), "p_w": rng.normal(0, 2.0, 3),
-                   "scale": opt.scale * (1.0 if not out else rng.uniform(0.5, 2.0))}
+                   "scale": opt.map_depth / depth * np.exp(error)}
+            scales.append(seg["scale"])
         else:
             step = truth.p[i] + truth.R[i] @ opt.lever - last_p
             walk = rng.normal(0, opt.drift_per_sqrt_m * np.sqrt(np.linalg.norm(step)), 3)
@@ -242,8 +252,10 @@ def simulate(sensors: SensorOptions | None = None, tracker: TrackerOptions | Non
     rng = np.random.default_rng(seed)
     truth = truth or survey_flight()
     mounting = mounting or MountingConfig()
-    return Flight(truth, autopilot_messages(truth, sensors or SensorOptions(), rng),
-                  tracker_results(truth, tracker or TrackerOptions(), mounting, rng))
+    scales: list = []
+    messages = autopilot_messages(truth, sensors or SensorOptions(), rng)
+    frames = tracker_results(truth, tracker or TrackerOptions(), mounting, rng, scales)
+    return Flight(truth, messages, frames, scales)
 
 
 def run(flight: Flight, estimator, timings: list | None = None) -> list:

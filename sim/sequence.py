@@ -6,11 +6,11 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from calib.camera import CameraModel
 from calib.errors import InputError
+from daemon.recordings import load_grey
 from sim.trajectory import Trajectory
 
 
@@ -21,14 +21,6 @@ class ImuSamples:
     t: np.ndarray
     accel: np.ndarray
     gyro: np.ndarray | None = None
-
-
-def load_grey(path: str | Path) -> np.ndarray:
-    """A uint8 grey image from a file; InputError if it cannot be decoded."""
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise InputError("cannot read image (missing or corrupt)", path)
-    return image
 
 
 @dataclass

@@ -3,16 +3,20 @@ origin handling, parameters, recording."""
 
 from __future__ import annotations
 
+import logging
 import socket
 import time
 
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
+from scipy.spatial.transform import Rotation
 
+from daemon.fusion.clock import ClockMap
 from daemon.messages import MAV_CMD_DO_SET_GLOBAL_ORIGIN
 from sim.autopilot import SimAutopilot, SimOptions
-from sim.autopilot.vehicle import GRAVITY
+from sim.autopilot.vehicle import ACCEL_LIMIT, GRAVITY
+from sim.trajectory import Trajectory
 
 
 class Client:
@@ -132,3 +136,65 @@ def test_records_vision_messages_with_arrival_time():
     vision = sim.vision
     assert [r.msg.get_type() for r in vision] == ["VISION_POSITION_ESTIMATE", "ODOMETRY"]
     assert all(before <= r.t <= time.monotonic() for r in vision)
+
+
+def test_timesync_and_streams_on_one_boot_clock():
+    """Like a real autopilot, TIMESYNC requests carry the boot time the streams are stamped
+    with, so the service's clock mapping gets one offset from either."""
+    with SimAutopilot(SimOptions(timesync_hz=20)) as sim:
+        client = Client(sim)
+        client.send(client.mav.heartbeat_encode(18, 8, 0, 0, 4))
+        client.listen(1.5)
+    clock, by_stamps, by_timesync = ClockMap(), [], []
+    for arrival, msg in client.received:
+        if msg.get_type() == "SCALED_IMU":
+            local = clock.to_local(msg.time_boot_ms / 1e3, arrival)
+            by_stamps.append(local - msg.time_boot_ms / 1e3)
+        elif msg.get_type() == "TIMESYNC":
+            assert msg.tc1 == 0 and msg.ts1 / 1e9 < 5.0  # seconds since boot
+            by_timesync.append(arrival - msg.ts1 / 1e9)
+    assert len(by_timesync) >= 20 and len(by_stamps) >= 50
+    # both are the boot instant on our clock plus a transport delay of at most a few ms
+    assert by_stamps[-1] == pytest.approx(sim.boot_time, abs=0.01)
+    assert min(by_timesync) == pytest.approx(sim.boot_time, abs=0.01)
+    clock.set_offset(min(by_timesync))
+    arrival, imu = next((t, m) for t, m in reversed(client.received)
+                        if m.get_type() == "SCALED_IMU")
+    assert clock.to_local(imu.time_boot_ms / 1e3, arrival) == pytest.approx(arrival, abs=0.01)
+
+
+def test_absurd_motion_saturates_the_imu_like_a_real_sensor():
+    t = np.arange(0.0, 2.0, 0.02)
+    wild = Trajectory(t, np.column_stack([1e4 * np.sin(40 * t), 0 * t, 0 * t - 2.0]),
+                      np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1)))
+    with SimAutopilot(SimOptions(trajectory=wild, timesync_hz=0)) as sim:
+        client = Client(sim)
+        client.send(client.mav.heartbeat_encode(18, 8, 0, 0, 4))
+        client.listen(0.6)
+        assert sim._thread.is_alive()
+    imu = client.of("SCALED_IMU")
+    assert len(imu) >= 20 and sim.skipped_messages == 0
+    assert max(abs(m.xacc) for m in imu) == round(ACCEL_LIMIT / GRAVITY * 1000)
+
+
+class _NanVehicle:
+    def state(self, t: float) -> dict:
+        nan = np.full(3, np.nan)
+        return {"position": nan, "velocity": nan, "rotation": Rotation.identity(),
+                "rates": nan, "specific_force": nan}
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered in cast")
+def test_unencodable_values_are_skipped_and_logged_never_fatal(caplog):
+    with SimAutopilot(SimOptions(timesync_hz=0)) as sim:
+        sim.vehicle = _NanVehicle()
+        client = Client(sim)
+        client.send(client.mav.heartbeat_encode(18, 8, 0, 0, 4))
+        with caplog.at_level(logging.WARNING, logger="sdvl.sim.autopilot"):
+            client.listen(1.2)
+        assert sim._thread.is_alive()
+    assert sim.skipped_messages > 20
+    assert len(client.of("HEARTBEAT")) >= 1 and len(client.of("ATTITUDE")) >= 15
+    warned = [r.getMessage() for r in caplog.records]
+    assert any(w.startswith("SCALED_IMU not sent") for w in warned)
+    assert len(warned) == len(set(warned)), "one warning per message kind"

@@ -3,8 +3,10 @@ reconnecting to a camera that is not there."""
 
 from __future__ import annotations
 
+import ast
 import threading
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -12,6 +14,7 @@ import pytest
 from daemon_helpers import FakeTracker, RunningService, service_config, wait_for
 
 from calib.camera import CameraModel
+from calib.camera_yaml import save_camera
 from calib.errors import InputError
 from daemon.camera import CaptureThread, OpenCVSource, SequenceSource, TestPatternSource
 from daemon.frames import Frame, LatestSlot
@@ -211,3 +214,53 @@ def test_grey_converts_colour_and_16_bit_frames_the_same_way_every_frame():
     assert grey(bgr).shape == (4, 6) and grey(bgr).dtype == np.uint8
     deep = np.full((4, 6), 0x8000, np.uint16)
     assert (grey(deep) == 0x80).all()
+
+
+def test_daemon_never_imports_sim():
+    """Dependencies point one way (daemon -> vo, calib): not even a lazy import of sim."""
+    root = Path(__file__).resolve().parents[1] / "daemon"
+    offenders = []
+    for path in root.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            offenders += [f"{path.name}:{node.lineno} {n}" for n in names
+                          if n == "sim" or n.startswith("sim.")]
+    assert offenders == []
+
+
+def _write_images(folder: Path, names: list[str]) -> list[np.ndarray]:
+    folder.mkdir()
+    images = [np.full((48, 64), 10 * (k + 1), np.uint8) for k in range(len(names))]
+    for name, image in zip(names, images, strict=True):
+        cv2.imwrite(str(folder / name), image)
+    return images
+
+
+def _played(folder: Path, fps: float = 30.0) -> tuple[list[float], list[np.ndarray]]:
+    from daemon.config import CameraConfig
+    from daemon.run_command import camera_model, open_source
+
+    source = open_source(CameraConfig(source=str(folder), fps=fps, realtime=False))
+    assert camera_model(CameraConfig(), source) == CAMERA
+    source.open()
+    items = iter(source.read, None)
+    return map(list, zip(*[(t, image) for t, _, image in items], strict=True))
+
+
+def test_image_folder_and_frame_list_as_camera(tmp_path):
+    save_camera(CAMERA, tmp_path / "camera.yaml")  # beside the folder
+    images = _write_images(tmp_path / "shots", ["img10.png", "img2.png", "img1.png"])
+    times, frames = _played(tmp_path / "shots", fps=10.0)
+    assert times == pytest.approx([0.0, 0.1, 0.2])
+    assert [f[0, 0] for f in frames] == [30, 20, 10]  # natural order: img1, img2, img10
+    folder = tmp_path / "listed"
+    _write_images(folder, ["a.png", "b.png"])
+    (folder / "frames.txt").write_text("# t path\n5.0 b.png\n5.5 a.png\n")
+    save_camera(CAMERA, folder / "camera.yaml")
+    times, frames = _played(folder)
+    assert times == [5.0, 5.5] and [f[0, 0] for f in frames] == [20, 10]
+    assert images[0].shape == frames[0].shape
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(InputError, match="no images"):
+        _played(tmp_path / "empty")

@@ -13,6 +13,7 @@ import pytest
 from daemon.config import MountingConfig
 from daemon.fusion.config import FusionConfig
 from daemon.fusion.estimator import FusionEstimator
+from daemon.fusion.state import LOG_SCALE
 from sim import fusion_sim as fh
 from sim.cli import main
 
@@ -63,8 +64,9 @@ def test_scale_converges_within_5_s_of_take_off(survey) -> None:
 def test_scale_converges_within_5_s_of_a_1_m_take_off() -> None:
     truth = fh.survey_flight(climb_m=1.0, leg_m=10.0, legs=1)
     score, estimator, *_ = fly(truth, fh.SensorOptions(), fh.TrackerOptions(), seed=1)
+    map_scale = fh.simulate(tracker=fh.TrackerOptions(), seed=1, truth=truth).map_scales[0]
     assert score.first_published_s - TAKEOFF_START_S <= 5.0
-    assert abs(estimator.filter.scale * fh.TrackerOptions().scale - 1.0) < 0.05
+    assert abs(estimator.filter.scale * map_scale - 1.0) < 0.05
 
 
 def test_nothing_published_before_alignment(survey) -> None:
@@ -136,3 +138,24 @@ def test_fusion_sim_command_prints_the_scores(capsys) -> None:
     report = json.loads(capsys.readouterr().out)
     assert report["published"] > 0 and report["position_pct"] < 3.0
     assert report["frame_ms_p95"] > 0 and report["reset_counter"] == 0
+
+
+@pytest.mark.parametrize("preset", ["down", "forward"])
+def test_a_new_maps_scale_prior_comes_from_the_rangefinder(truth: fh.Truth, preset: str) -> None:
+    """At 8 m the tracker's first map has 1/8.15 units per metre (median depth 1 unit): a
+    downward camera takes that scale from the rangefinder, a forward one keeps the wide prior."""
+    tracker = fh.TrackerOptions(start_s=10.0)
+    mounting = MountingConfig(preset=preset)
+    flight = fh.simulate(fh.SensorOptions(imu=None, baro=False), tracker, mounting, seed=2,
+                         truth=truth)
+    flight.frames = flight.frames[:1]
+    cfg = fh.fusion_config()
+    estimator = FusionEstimator(cfg, mounting, fh.link_config())
+    fh.run(flight, estimator)
+    f = estimator.filter
+    std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
+    if preset == "down":
+        assert abs(f.scale * flight.map_scales[0] - 1.0) < 0.05
+        assert std == pytest.approx(cfg.range_scale_prior_std)
+    else:
+        assert std == pytest.approx(cfg.scale_prior_std)

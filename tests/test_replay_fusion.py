@@ -1,10 +1,12 @@
 """The replay with the fusion EKF: a known flight in NED, a tracker that reports the ground
 truth in its own scaled and rotated world, the simulated autopilot streaming the flight's
 sensors. The received poses are scored after only the start alignment, and `sdvl eval --align
-none` on the written files agrees."""
+none` on the written files agrees. The lockstep replay (`--fast` with fusion) is deterministic,
+uses the flight's recorded sensors and leaves sensors out on request; the fusion scores."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -15,13 +17,18 @@ from calib.camera import CameraModel
 from daemon.config import Config, replace
 from daemon.mounting import body_from_camera
 from sim.cli import main
+from sim.metrics import align_trajectories
+from sim.replay.fusion_scores import fusion_scores, nees_per_dof, takeoff_time
 from sim.replay.harness import run_replay
-from sim.replay.report import build_report
+from sim.replay.lockstep import autopilot_messages
+from sim.replay.report import build_report, format_report
 from sim.sequence import Sequence
+from sim.synth.flight import synthetic_sequence
 from sim.trajectory import Trajectory
 from vo.result import FrameResult
 
 FPS = 30.0
+LOCKSTEP_FRAMES = 150
 VO_SCALE = 0.5  # tracker units per metre
 
 
@@ -84,3 +91,68 @@ def test_fusion_replay_scores_ned_positions_after_the_start_alignment(tmp_path, 
                  "--json"]) == 0
     ev = json.loads(capsys.readouterr().out)
     assert ev["ate_rmse_m"] == pytest.approx(r["ate_rmse_m"], rel=1e-6)
+
+
+
+@pytest.fixture(scope="module")
+def take_off():
+    """The first 5 s of hover-down (climb from 1.5 m), images left blank (the tracker reports
+    the ground truth), so nothing is rendered."""
+    sequence = synthetic_sequence("hover-down", frames=LOCKSTEP_FRAMES, size=(64, 48), seed=1)
+    blank = np.zeros((48, 64), np.uint8)
+    return dataclasses.replace(sequence, image_loader=lambda i: blank)
+
+
+def replay(sequence, without=()):
+    # the tracker is the ground truth: its position does not drift like a real one's
+    config = replace(Config(), fusion={"enabled": True, "vo_covariance_factor": 1.0})
+    run = run_replay(sequence, config, realtime=False, progress=False, without=without,
+                     make_tracker=lambda frame: GroundTruthTracker(sequence.groundtruth))
+    return build_report(run, None)[0]
+
+
+def test_lockstep_is_deterministic_and_scores_the_take_off(take_off) -> None:
+    first, second = replay(take_off), replay(take_off)
+    print("\n" + format_report(first))
+    assert first["mode"] == "lockstep" and first["without"] == []
+    for key in ("messages_received", "ate_rmse_m", "nees_position", "first_publish_s"):
+        assert first[key] == second[key]
+    assert first["messages_received"] >= 60
+    assert first["ate_rmse_m"] < 0.1 and first["heading_rms_deg"] < 2.0
+    assert first["takeoff_s"] is not None and first["climb_m"] > 2.0
+    assert first["publish_after_takeoff_s"] <= 5.0
+    assert first["latency_ms_p50"] is None and first["message_rate_hz"] is None
+    assert np.isfinite(first["nees_position"]) and np.isfinite(first["nees_velocity"])
+
+
+def test_sensors_left_out_are_not_streamed(take_off) -> None:
+    flight = Trajectory(take_off.groundtruth.t, take_off.groundtruth.positions,
+                        take_off.groundtruth.quaternions)
+    streams = {"ATTITUDE": 20, "SCALED_PRESSURE": 10}
+    kinds = {m.get_type() for _, m in autopilot_messages(take_off, flight, streams, 2.0)}
+    assert kinds == {"ATTITUDE", "SCALED_PRESSURE"}
+    report = replay(take_off, without=("imu", "baro"))
+    assert report["without"] == ["imu", "baro"]
+
+
+def test_nees_heading_and_take_off_scores() -> None:
+    errors = np.array([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
+    covariances = np.array([np.eye(3), 4 * np.eye(3)])
+    assert nees_per_dof(errors, covariances) == pytest.approx(1 / 3)
+    assert nees_per_dof(errors, np.full((2, 3, 3), np.nan)) is None
+    t = np.linspace(0.0, 4.0, 41)
+    height = np.where(t < 1.0, 1.0, 1.0 + (t - 1.0))
+    yaw = np.radians(5.0)
+    truth = Trajectory(t, np.column_stack([t, 0 * t, -height]),
+                       np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1)))
+    estimate = Trajectory(t, truth.positions + np.array([0.0, 0.3, 0.0]),
+                          np.tile(Rotation.from_euler("z", yaw).as_quat(), (len(t), 1)))
+    start, climb = takeoff_time(truth, 0.0)
+    assert start == pytest.approx(1.1) and climb == pytest.approx(3.0)
+    aligned = align_trajectories(truth, estimate, "none")
+    scores = fusion_scores(aligned, truth, np.zeros((len(t), 3)),
+                           np.tile(0.09 * np.eye(3), (len(t), 1, 1)),
+                           np.tile(np.eye(3), (len(t), 1, 1)), 0.0)
+    assert scores["heading_rms_deg"] == pytest.approx(5.0)
+    assert scores["nees_position"] == pytest.approx(1 / 3)
+    assert scores["ate_pct_distance"] == pytest.approx(100 * 0.3 / scores["distance_m"])

@@ -115,21 +115,25 @@ def update_candidates(params, idx, host, u, v, level, f, rho, sigma, a, b, rho_r
 
 
 @numba.njit(cache=True, nogil=True)
-def search_new(params, ref_flat, u, v, level, f, rho0, sigma0, T_cur_ref, pyr_off, pyr_w, pyr_h,
-               cur_flat, cx, cy, cxn, cyn, c_row_start, max_level, margin, threshold,
-               iterations, px_angle):
-    """Search new candidates of the reference keyframe in another keyframe; per candidate
-    (found, inverse-depth measurement, its std)."""
-    n = u.shape[0]
-    found = np.zeros(n, dtype=np.bool_)
-    x = np.zeros(n)
-    tau = np.zeros(n)
-    for k in range(n):
-        found[k], x[k], tau[k], _, _ = _measure(
+def search_new(params, ref_flat, u, v, level, f, rho, sigma, rho0, sigma0, a0, b0, rho_range,
+               T_cur_ref, pyr_off, pyr_w, pyr_h, cur_flat, cx, cy, cxn, cyn, c_row_start,
+               max_level, margin, threshold, iterations, px_angle):
+    """Search the new candidates of the reference keyframe still without a depth (rho NaN) in
+    another keyframe; a match is the first depth-filter update of the prior (rho0 +- sigma0,
+    Beta(a0, b0)) and sets rho, sigma in place. One kernel for all of them: no GIL
+    round trip per point."""
+    for k in range(u.shape[0]):
+        if not np.isnan(rho[k]):
+            continue
+        found, x, tau, _, _ = _measure(
             params, ref_flat, u[k], v[k], level[k], f[k], rho0, sigma0, T_cur_ref, pyr_off,
             pyr_w, pyr_h, cur_flat, cx, cy, cxn, cyn, c_row_start, max_level, margin, threshold,
             iterations, px_angle)
-    return found, x, tau
+        if not found:
+            continue
+        m, s2, _, _ = update_seed(rho0, sigma0 ** 2, a0, b0, x, tau * tau, rho_range)
+        if m > 0.0:
+            rho[k], sigma[k] = m, np.sqrt(s2)
 
 
 class Mapper:
@@ -145,6 +149,9 @@ class Mapper:
         # waiting); skipped ones are counted
         self.ba_allowed: Callable[[], bool] = lambda: True
         self.skipped_ba = 0
+        # called with each frame before its step (threaded mapping only): a service holds the
+        # mapping thread here until the frame's estimate is on its way (daemon.tracking)
+        self.before_step: Callable[[Frame], None] = lambda frame: None
 
     def _search_args(self, frame: Frame):
         c = frame.corners(self.config.fast_threshold)
@@ -155,6 +162,7 @@ class Mapper:
 
     def step(self, frame: Frame, keyframe: bool) -> None:
         """Process one tracked frame (and make it a keyframe when asked)."""
+        self.before_step(frame)
         pts = self.map.points
         with self.map.lock:
             if pts.step():
@@ -198,19 +206,12 @@ class Mapper:
         rho = np.full(len(u), np.nan)
         sigma = np.full(len(u), np.nan)
         for other in self._search_keyframes(frame, slot):
-            todo = np.flatnonzero(np.isnan(rho))
-            if len(todo) == 0:
+            if not np.isnan(rho).any():
                 break
-            kf = self.map.keyframes[other]
-            T_cur_ref = kf.T_c_w @ T_w_new
-            found, x, tau = search_new(self.camera.params, frame.pyr.flat, u[todo], v[todo],
-                                       level[todo], f[todo], rho0, sigma0, T_cur_ref,
-                                       *self._search_args(kf))
-            for k in np.flatnonzero(found):
-                m, s2, _, _ = update_seed(rho0, sigma0 ** 2, cfg.seed_a, cfg.seed_b, x[k],
-                                          tau[k] ** 2, 1.0 / d_min)
-                if m > 0:
-                    rho[todo[k]], sigma[todo[k]] = m, np.sqrt(s2)
+            T_cur_ref = self.map.keyframes[other].T_c_w @ T_w_new
+            search_new(self.camera.params, frame.pyr.flat, u, v, level, f, rho, sigma, rho0,
+                       sigma0, cfg.seed_a, cfg.seed_b, 1.0 / d_min, T_cur_ref,
+                       *self._search_args(self.map.keyframes[other]))
         new = np.flatnonzero(np.isfinite(rho))
         with self.map.lock:
             pts.add(slot, u[new], v[new], level[new], f[new], rho[new], sigma[new],

@@ -31,6 +31,12 @@ class FusionConfig:
     # priors of a new map segment
     scale_prior_std: float = 2.0  # of ln(scale): 2.0 lets the scale be 7x off either way
     initial_scale: float = 1.0  # metres per VO unit guessed for the first segment
+    # the tracker scales a new map so that its median scene depth is this many units (vo's
+    # init_map_depth): with a downward camera the rangefinder's distance then gives the map's
+    # scale to within range_scale_prior_std (ln), so the filter starts near it instead of up to
+    # 7x off, where its linearisation made the scale of survey-down 30 % low and sure of it
+    map_depth_units: float = 1.0
+    range_scale_prior_std: float = 0.3
     # vehicle speed when tracking starts: a take-off starts still, a flight that starts tracking
     # on the way does not (a tight prior there biases the first scale)
     start_velocity_std: float = 3.0  # m/s
@@ -47,6 +53,10 @@ class FusionConfig:
     # the tracker's own position covariance is too small: its errors are correlated with its
     # rotation errors (tilt vs translation over a flat scene) and wander over ~1 s; variance factor
     vo_covariance_factor: float = 6.0
+    # its slowly wandering tilt error and the position error that goes with it (state.py): std
+    # and correlation time; the synthetic downward flights show 1.3-2.9 deg rms over ~1 s
+    vo_tilt_error_std_deg: float = 1.5
+    vo_error_time_s: float = 1.0
     vo_drift_m_per_sqrt_m: float = 0.01  # VO position random walk per sqrt(metre travelled)
     vo_drift_m_per_sqrt_s: float = 0.0  # VO position random walk per sqrt(second), also at rest
     reanchor_distance_m: float = 5.0  # fuse the map relative to a pose at most this far back
@@ -94,8 +104,10 @@ class FusionConfig:
         """InputError naming the first setting that makes no sense (in config file `path`)."""
         positive = ("scale_std_max", "heading_std_max_deg", "progress_interval_s",
                     "scale_prior_std", "initial_scale", "start_velocity_std",
+                    "map_depth_units", "range_scale_prior_std",
                     "coarse_scale_std", "vo_position_std_m",
                     "vo_rotation_std_deg", "vo_covariance_factor", "reanchor_distance_m",
+                    "vo_tilt_error_std_deg", "vo_error_time_s",
                     "attitude_std_deg", "heading_std_deg",
                     "attitude_timeout_s", "accel_noise", "accel_bias_std", "imu_timeout_s",
                     "motion_accel_std", "range_std_m", "baro_std_m", "gate_chi2_1dof",

@@ -37,6 +37,7 @@ from daemon.mounting import body_from_camera
 log = logging.getLogger("sdvl.fusion")
 INBOX_LIMIT = 20_000
 TRACKED = ("good", "insufficient", "bad")
+RANGE_FRESH_S = 0.5  # a rangefinder reading this close to a new map gives its scale
 
 
 @dataclass(frozen=True)
@@ -94,6 +95,9 @@ class FusionEstimator:
         self._had_segment = False
         self._realigns_seen = 0
         self._last_frame_t = float("-inf")
+        self._range: tuple[float, float] | None = None  # (t, distance) of the newest reading
+        optical_axis = self.R_c_b.T[:, 2]  # in body FRD
+        self._camera_down = optical_axis[2] >= np.cos(np.radians(cfg.range_max_tilt_deg))
 
     # --- the Estimator protocol ---------------------------------------------------------------
 
@@ -189,6 +193,8 @@ class FusionEstimator:
         if event.kind == "frame":
             self._apply_frame(event.t, event.data)
             return
+        if event.kind == "range":
+            self._range = (event.t, event.data.distance)
         if f.t is None or event.kind == "attitude":
             return
         self._propagate(event.t)
@@ -223,8 +229,7 @@ class FusionEstimator:
         if f.segment != frame.segment:
             if att is None:
                 return
-            scale = f.x[LOG_SCALE] if f.segment >= 0 else np.log(self.cfg.initial_scale)
-            f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, scale)
+            f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, *self._scale_prior(t))
             f.segment = frame.segment
             return
         factor = inflation(self.cfg, frame.quality)
@@ -244,6 +249,18 @@ class FusionEstimator:
             f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, f.x[LOG_SCALE],
                             float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE])))
             f.rejections["vo"] = 0
+
+    def _scale_prior(self, t: float) -> tuple[float, float | None]:
+        """ln(scale) and its std for a new map: from the rangefinder's distance when the camera
+        looks down and a reading is fresh (the map's median depth is map_depth_units), else the
+        last map's scale or the configured guess with the wide prior (None)."""
+        cfg = self.cfg
+        if (self._camera_down and self._range is not None
+                and abs(t - self._range[0]) <= RANGE_FRESH_S):
+            return float(np.log(self._range[1] / cfg.map_depth_units)), cfg.range_scale_prior_std
+        f = self.filter
+        return (float(f.x[LOG_SCALE]) if f.segment >= 0 else float(np.log(cfg.initial_scale)),
+                None)
 
     def _vo_noise_n(self, f: NavFilter, frame: FrameInput) -> np.ndarray:
         """The tracker's position noise in metres and N."""

@@ -16,6 +16,7 @@ from daemon.fusion.state import (
     LOG_SCALE,
     POS,
     THETA,
+    VO_TILT,
     NavFilter,
     matrix_to_rotvec,
     rotvec_to_matrix,
@@ -77,10 +78,22 @@ def _position_rows(f: NavFilter, p_w: np.ndarray, R_n_b: np.ndarray
 
 def _alignment_rows(f: NavFilter, R_n_b_autopilot: np.ndarray, R_w_b: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(z, h, H) of the autopilot's attitude against the tracker's: a direct look at R_N_w."""
+    """(z, h, H) of the autopilot's attitude against the tracker's: a direct look at R_N_w,
+    less the tracker's own tilt error."""
     H = np.zeros((3, DIM))
     H[:, THETA] = np.eye(3)
-    return (matrix_to_rotvec(R_n_b_autopilot @ R_w_b.T @ f.R_nom.T), f.x[THETA].copy(), H)
+    H[:2, VO_TILT] = -np.eye(2)
+    return (matrix_to_rotvec(R_n_b_autopilot @ R_w_b.T @ f.R_nom.T),
+            f.x[THETA] - np.append(f.x[VO_TILT], 0.0), H)
+
+
+def tilt_coupling(cov_n: np.ndarray) -> np.ndarray:
+    """The tracker's position error per radian of its tilt error (3x2, tracker units, N axes):
+    its covariance's regression of position on rotation about north and east."""
+    try:
+        return cov_n[:3, 3:5] @ np.linalg.pinv(cov_n[3:5, 3:5], rcond=1e-9)
+    except np.linalg.LinAlgError:
+        return np.zeros((3, 2))
 
 
 def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarray,
@@ -99,18 +112,23 @@ def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarra
     then (only a constant-velocity guess would), so the horizontal rows do not update the scale
     (a Schmidt "consider" update: the scale's uncertainty still counts in their innovation).
     `horizontal_inflation` further inflates the north and east rows (variance factor)."""
-    z, h, H, u = _position_rows(f, p_w, R_n_b)
-    floor = (f.cfg.vo_position_std_m * float(np.exp(-f.x[LOG_SCALE]))) ** 2
     rotate = np.kron(np.eye(2), f.R_nom)
-    R = inflation * (rotate @ cov_w @ rotate.T + np.diag([floor] * 3 + [0.0] * 3))
+    cov_n = rotate @ cov_w @ rotate.T
+    coupling = tilt_coupling(cov_n)
+    z, h, H, u = _position_rows(f, p_w, R_n_b)
+    h = h + coupling @ f.x[VO_TILT]
+    H[:, VO_TILT] = coupling
+    if attitude is not None:
+        z_a, h_a, H_a = _alignment_rows(f, attitude[0], attitude[1])
+        z, h, H = np.concatenate([z, z_a]), np.concatenate([h, h_a]), np.vstack([H, H_a])
+    floor = (f.cfg.vo_position_std_m * float(np.exp(-f.x[LOG_SCALE]))) ** 2
+    R = inflation * (cov_n + np.diag([floor] * 3 + [0.0] * 3))
     stretch = np.diag([np.sqrt(horizontal_inflation)] * 2 + [1.0] * 4)
     R = stretch @ R @ stretch
     gate = f.cfg.gate_chi2_3dof
     if attitude is None:
         R = R[:3, :3]
     else:
-        z_a, h_a, H_a = _alignment_rows(f, attitude[0], attitude[1])
-        z, h, H = np.concatenate([z, z_a]), np.concatenate([h, h_a]), np.vstack([H, H_a])
         R[3:, 3:] += attitude[2]
         R[:3, 3:] *= -1.0  # z_a carries minus the tracker's rotation error
         R[3:, :3] *= -1.0

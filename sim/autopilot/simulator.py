@@ -10,7 +10,9 @@ link or reboot on request. It runs in its own thread.
 from __future__ import annotations
 
 import contextlib
+import logging
 import select
+import struct
 import threading
 import time
 from dataclasses import dataclass, field
@@ -24,6 +26,7 @@ from sim.autopilot.ports import open_port
 from sim.autopilot.vehicle import Vehicle, sensor_message
 from sim.trajectory import Trajectory
 
+log = logging.getLogger("sdvl.sim.autopilot")
 VISION_MESSAGES = ("ODOMETRY", "VISION_POSITION_ESTIMATE", "VISION_SPEED_ESTIMATE")
 AUTOPILOT_TYPE = {"ardupilot": mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA,
                   "px4": mavlink2.MAV_AUTOPILOT_PX4}
@@ -82,6 +85,8 @@ class SimAutopilot:
         self.origin: tuple[int, int, int] | None = None
         self.origin_attempts: list[tuple[float, str, bool]] = []  # (t, kind, accepted)
         self.bad_frames = 0
+        self.skipped_messages = 0  # stream messages whose values did not fit the message
+        self._skip_logged: set[str] = set()
         self.sent_count: dict[str, int] = {}
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -171,23 +176,34 @@ class SimAutopilot:
         self.sent_count[msg.get_type()] = self.sent_count.get(msg.get_type(), 0) + 1
 
     def _stream(self, now: float) -> None:
-        boot_ms = int((now - self.boot_time) * 1000)
         for name, hz in self._rates().items():
             if hz <= 0 or now < self._due[name]:
                 continue
             self._due[name] = max(self._due[name] + 1.0 / hz, now - 1.0 / hz)
-            if name == "HEARTBEAT":
-                status = (mavlink2.MAV_STATE_STANDBY if now >= self.ekf_ready_at
-                          else mavlink2.MAV_STATE_BOOT)
-                msg = self.mav.heartbeat_encode(mavlink2.MAV_TYPE_QUADROTOR,
-                                                AUTOPILOT_TYPE[self.opt.flavour], 0, 0, status)
-            elif name == "TIMESYNC":
-                msg = self.mav.timesync_encode(0, time.monotonic_ns())
-            elif name == "SYSTEM_TIME":
-                msg = self.mav.system_time_encode(int(time.time() * 1e6), boot_ms)
-            else:
-                msg = sensor_message(self.mav, name, now - self.boot_time, boot_ms, self.vehicle)
-            self._send(msg)
+            try:
+                self._send(self._stream_message(name, now))
+            except (struct.error, ValueError, OverflowError) as exc:
+                # a value the message cannot carry (a wild trajectory): skip this one message
+                self.skipped_messages += 1
+                if name not in self._skip_logged:
+                    self._skip_logged.add(name)
+                    log.warning("%s not sent (%s); skipping such messages", name, exc)
+
+    def _stream_message(self, name: str, now: float) -> object:
+        """The stream message `name` at `now`; every stamp is on the boot clock, like a real
+        autopilot's (TIMESYNC's ts1 included)."""
+        uptime = now - self.boot_time
+        boot_ms = int(uptime * 1000)
+        if name == "HEARTBEAT":
+            status = (mavlink2.MAV_STATE_STANDBY if now >= self.ekf_ready_at
+                      else mavlink2.MAV_STATE_BOOT)
+            return self.mav.heartbeat_encode(mavlink2.MAV_TYPE_QUADROTOR,
+                                             AUTOPILOT_TYPE[self.opt.flavour], 0, 0, status)
+        if name == "TIMESYNC":
+            return self.mav.timesync_encode(0, round(uptime * 1e9))
+        if name == "SYSTEM_TIME":
+            return self.mav.system_time_encode(int(time.time() * 1e6), boot_ms)
+        return sensor_message(self.mav, name, uptime, boot_ms, self.vehicle)
 
     def _receive(self, data: bytes, now: float) -> None:
         for msg in self.mav.parse_buffer(data) or []:
@@ -200,7 +216,7 @@ class SimAutopilot:
     def _handle(self, msg: object, now: float) -> None:
         kind = msg.get_type()
         if kind == "TIMESYNC" and msg.tc1 != 0:
-            self.timesync_rtts.append(now - msg.ts1 / 1e9)
+            self.timesync_rtts.append(now - self.boot_time - msg.ts1 / 1e9)
         elif kind == "SET_GPS_GLOBAL_ORIGIN":
             self._set_origin(now, "message", msg.latitude, msg.longitude, msg.altitude)
         elif kind in ("COMMAND_INT", "COMMAND_LONG"):

@@ -15,6 +15,11 @@ from sim.trajectory import Trajectory
 GRAVITY = 9.80665
 SEA_LEVEL_HPA = 1013.25
 DIFF_DT = 0.01
+# a flight controller's IMU saturates (16 g, ~1700 deg/s); SCALED_IMU's int16 mG / mrad/s fields
+# could not carry more than 32 g and 32 rad/s anyway
+ACCEL_LIMIT = 16 * GRAVITY
+GYRO_LIMIT = 30.0
+MAX_RANGE_CM = 65535
 
 
 def hover_trajectory(duration_s: float = 20.0, rate_hz: float = 50.0) -> Trajectory:
@@ -58,6 +63,8 @@ def sensor_message(mav: mavlink2.MAVLink, name: str, t: float, boot_ms: int,
                     vehicle: Vehicle) -> object:
     """One stream message of kind `name` for vehicle time `t`."""
     s = vehicle.state(t)
+    s["specific_force"] = np.clip(s["specific_force"], -ACCEL_LIMIT, ACCEL_LIMIT)
+    s["rates"] = np.clip(s["rates"], -GYRO_LIMIT, GYRO_LIMIT)
     yaw, pitch, roll = s["rotation"].as_euler("ZYX")
     height = -float(s["position"][2])
     if name == "ATTITUDE":
@@ -72,7 +79,7 @@ def sensor_message(mav: mavlink2.MAVLink, name: str, t: float, boot_ms: int,
         return mav.scaled_imu_encode(boot_ms, *accel_mg, *gyro_mrad, 200, 0, 400)
     if name == "DISTANCE_SENSOR":
         tilt = np.cos(roll) * np.cos(pitch)
-        cm = round(100 * height / max(tilt, 0.1))
+        cm = min(max(round(100 * height / max(tilt, 0.1)), 0), MAX_RANGE_CM)
         return mav.distance_sensor_encode(boot_ms, 20, 4000, cm,
                                           mavlink2.MAV_DISTANCE_SENSOR_LASER, 0,
                                           mavlink2.MAV_SENSOR_ROTATION_PITCH_270, 0)

@@ -10,8 +10,8 @@ from scipy.spatial.transform import Rotation
 
 from calib.camera import CameraModel
 from calib.errors import InputError
+from calib.textfile import check_increasing, read_lines, read_numeric_table
 from sim.sequence import ImuSamples, Sequence, image_list_sequence
-from sim.textfile import check_increasing, read_lines, read_numeric_table
 from sim.trajectory import Trajectory
 
 NS = 1e-9

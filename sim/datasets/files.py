@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import cv2
@@ -12,15 +11,10 @@ from calib.camera import CameraModel
 from calib.camera_yaml import load_camera
 from calib.errors import InputError
 from daemon.camera import grey
+from daemon.recordings import DEFAULT_FPS, open_recording
 from sim.sequence import Sequence, image_list_sequence
 
-IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mkv", ".mov", ".webm", ".m4v", ".mpg", ".mpeg"}
-DEFAULT_FPS = 30.0
-
-
-def _natural_key(path: Path) -> list:
-    return [int(s) if s.isdigit() else s for s in re.split(r"(\d+)", path.name)]
 
 
 def _find_camera(candidates: list[Path], what: Path) -> CameraModel:
@@ -31,21 +25,13 @@ def _find_camera(candidates: list[Path], what: Path) -> CameraModel:
                      f"{', '.join(c.name for c in candidates)}); pass --camera FILE", what)
 
 
-def image_files(path: Path) -> list[Path]:
-    """The image files of a folder in natural order (img2 before img10)."""
-    return sorted((p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES),
-                  key=_natural_key)
-
-
 def read_image_folder(path: Path, camera: CameraModel | None = None,
                       fps: float | None = None) -> Sequence:
     """The images of a folder in natural order, at `fps` (default 30) from t = 0."""
-    files = image_files(path)
-    if not files:
-        raise InputError("no images in folder", path)
-    camera = camera or _find_camera([path / "camera.yaml", path.parent / "camera.yaml"], path)
-    times = np.arange(len(files)) / (fps or DEFAULT_FPS)
-    return image_list_sequence(path.resolve().name, camera, times, files,
+    recording = open_recording(path, fps)
+    camera = camera or recording.camera or _find_camera(
+        [path / "camera.yaml", path.parent / "camera.yaml"], path)
+    return image_list_sequence(recording.name, camera, recording.timestamps, recording.files,
                                extras={"root": path})
 
 

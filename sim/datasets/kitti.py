@@ -8,8 +8,8 @@ import numpy as np
 
 from calib.camera import CameraModel
 from calib.errors import InputError
+from calib.textfile import check_increasing, parse_floats, read_lines, read_numeric_table
 from sim.sequence import Sequence, image_list_sequence, load_grey
-from sim.textfile import check_increasing, parse_floats, read_lines, read_numeric_table
 from sim.trajectory import Trajectory
 
 

@@ -13,8 +13,9 @@ import yaml
 from calib.camera import CameraModel
 from calib.camera_yaml import load_camera
 from calib.errors import InputError
+from calib.textfile import check_increasing, read_numeric_table
+from daemon.recordings import read_frame_list
 from sim.sequence import ImuSamples, Sequence, image_list_sequence
-from sim.textfile import check_increasing, parse_floats, read_lines, read_numeric_table
 from sim.trajectory import read_tum
 
 IMU_COLUMNS = "t ax ay az gx gy gz"
@@ -36,19 +37,6 @@ class SensorSamples:
 def is_layout(path: Path) -> bool:
     """True if `path` is a folder in this layout."""
     return (path / "frames.txt").is_file()
-
-
-def read_frame_list(path: Path) -> tuple[np.ndarray, list[Path]]:
-    """Times and absolute image paths from a `timestamp relative/path` list."""
-    times, files = [], []
-    for line, fields in read_lines(path):
-        if len(fields) != 2:
-            raise InputError("expected 'timestamp relative/path'", path, line)
-        times.append(parse_floats(fields[:1], path, line, "a timestamp")[0])
-        files.append(path.parent / fields[1])
-    times = np.array(times)
-    check_increasing(times, path)
-    return times, files
 
 
 def read_imu_csv(path: Path) -> ImuSamples:

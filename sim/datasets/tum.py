@@ -8,9 +8,9 @@ from pathlib import Path
 from calib.camera import CameraModel
 from calib.camera_yaml import load_camera
 from calib.errors import InputError
-from sim.datasets.layout import read_frame_list
+from calib.textfile import read_numeric_table
+from daemon.recordings import read_frame_list
 from sim.sequence import ImuSamples, Sequence, image_list_sequence
-from sim.textfile import read_numeric_table
 from sim.trajectory import read_tum
 
 # The official calibration of the three Kinects (TUM RGB-D "file formats" page), colour camera.

@@ -15,7 +15,7 @@ from pathlib import Path
 from calib.errors import InputError
 from daemon.config import Config, load_config
 from daemon.run_command import setup_logging
-from sim.replay.flight import is_ned
+from sim.replay.flight import SENSOR_STREAMS, is_ned
 from sim.replay.harness import choose_estimator, during_replay, run_replay
 from sim.replay.report import build_report, format_report
 
@@ -34,7 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     mode.add_argument("--fast", dest="realtime", action="store_const", const=False,
                       help="play frames as fast as tracking takes them (at most at "
                            "mavlink.max_rate_hz, so every estimate is sent), none dropped "
-                           "(default with pass-through; not with fusion)")
+                           "(default with pass-through); with fusion: lockstep on a virtual "
+                           "clock with the flight's recorded sensors, deterministic (no link)")
     parser.add_argument("--estimator", choices=("auto", "fusion", "pass-through"),
                         default="auto",
                         help="auto (default): the config's [fusion] choice for sequences that "
@@ -43,6 +44,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, default=None,
                         help="service config (TOML, as for sdvl run); its link and camera "
                              "source are replaced by the replay's")
+    parser.add_argument("--without", action="append", default=[],
+                        choices=sorted(SENSOR_STREAMS),
+                        help="the autopilot does not stream this sensor (repeatable): fusion "
+                             "with fewer sensors")
+    parser.add_argument("--seed", type=int, default=None,
+                        help="seed of a synthetic preset (its world, sensor noise; default 0)")
     parser.add_argument("--max-frames", type=int, default=None, metavar="N",
                         help="replay only the first N frames")
     parser.add_argument("--out", type=Path, default=None, metavar="DIR",
@@ -58,18 +65,33 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="service log level on stderr (default warning)")
 
 
-def run(args: argparse.Namespace) -> int:
-    """Replay, report, plot."""
+def _open(name: str, seed: int | None) -> object:
+    """The sequence named on the command line; a synthetic preset with `seed`."""
     from sim.track_command import resolve_sequence
 
+    if seed is None:
+        return resolve_sequence(name)
+    from sim.synth.presets import PRESETS
+
+    if name not in PRESETS or Path(name).exists():
+        raise InputError(f"--seed is for synthetic presets ({', '.join(PRESETS)}), not "
+                         f"'{name}'")
+    from sim.synth.flight import synthetic_sequence
+
+    return synthetic_sequence(name, seed=seed)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Replay, report, plot."""
     if args.max_frames is not None and args.max_frames <= 0:
         raise InputError("--max-frames must be positive")
     config = load_config(args.config) if args.config else Config()
     setup_logging(args.log_level)
-    sequence = resolve_sequence(args.sequence)
+    sequence = _open(args.sequence, args.seed)
     config = choose_estimator(config, sequence, args.estimator)
     realtime = config.fusion.enabled if args.realtime is None else args.realtime
-    replay = run_replay(sequence, config, realtime, args.max_frames, progress=not args.quiet)
+    replay = run_replay(sequence, config, realtime, args.max_frames, progress=not args.quiet,
+                        without=tuple(args.without))
     out_dir = args.out or Path("sdvl-replay") / sequence.name
     report, aligned, reference = build_report(replay, out_dir)
     if args.plot is not None:

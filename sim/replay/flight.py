@@ -24,6 +24,10 @@ from sim.trajectory import Trajectory
 
 RANGEFINDER_M = (0.2, 40.0)  # DISTANCE_SENSOR min and max distance the simulator encodes
 RESAMPLE_HZ = 200.0
+# the autopilot's message streams of each sensor a replay can leave out
+SENSOR_STREAMS = {"imu": ("SCALED_IMU", "HIGHRES_IMU", "RAW_IMU"),
+                  "baro": ("SCALED_PRESSURE", "ALTITUDE"),
+                  "rangefinder": ("DISTANCE_SENSOR",)}
 
 
 def is_ned(sequence: object) -> bool:
@@ -88,10 +92,13 @@ def body_imu(sequence: object) -> ImuSamples | None:
     return imu if imu is not None and in_body else None
 
 
-def sensor_streams(flavour: str, flight: Trajectory | None) -> dict[str, float]:
-    """The flavour's streams; the rangefinder only when the whole flight stays within its
-    range above the flat ground at NED z = 0 (a hand-held dataset's 'height' means nothing)."""
-    streams = dict(DEFAULT_STREAMS[flavour])
+def sensor_streams(flavour: str, flight: Trajectory | None,
+                   without: tuple[str, ...] = ()) -> dict[str, float]:
+    """The flavour's streams but those of the sensor kinds in `without` (SENSOR_STREAMS); the
+    rangefinder only when the whole flight stays within its range above the flat ground at NED
+    z = 0 (a hand-held dataset's 'height' means nothing)."""
+    left_out = {name for kind in without for name in SENSOR_STREAMS[kind]}
+    streams = {k: v for k, v in DEFAULT_STREAMS[flavour].items() if k not in left_out}
     if flight is not None:
         height = -flight.positions[:, 2]
         if height.min() < RANGEFINDER_M[0] or height.max() > RANGEFINDER_M[1]:

@@ -111,6 +111,7 @@ class ReplayRun:
     peak_rss_mb: float
     exit_code: int
     stats: dict = field(default_factory=dict)
+    without: tuple[str, ...] = ()  # sensors the autopilot did not stream
 
 
 def during_replay(trajectory: Trajectory, run: ReplayRun) -> Trajectory:
@@ -164,15 +165,29 @@ async def _serve(service: Service, source: ReplaySource, recorder: Recorder,
 
 def run_replay(sequence: object, config: Config, realtime: bool,
                max_frames: int | None = None, progress: bool = True,
-               make_tracker: Callable | None = None) -> ReplayRun:
+               make_tracker: Callable | None = None, without: tuple[str, ...] = ()
+               ) -> ReplayRun:
     """Play `sequence` through the service (its estimator as `config.fusion.enabled` says)
-    against the simulated autopilot; `make_tracker(frame)` replaces the SDVL tracker (tests)."""
+    against the simulated autopilot, which does not stream the sensor kinds in `without`
+    (flight.SENSOR_STREAMS); `make_tracker(frame)` replaces the SDVL tracker (tests). Fusion
+    without `realtime` runs in lockstep on a virtual clock (sim/replay/lockstep.py)."""
+    from sim.replay.lockstep import lockstep_config, run_lockstep
+
     config = replace(drone_config(config, sequence),
                      camera={"source": "testpattern", "calibration": ""})
-    if config.fusion.enabled and not realtime:
-        raise InputError("fusion needs --realtime: the autopilot's IMU runs on the wall clock")
+    lockstep = config.fusion.enabled and not realtime
+    if lockstep:
+        if getattr(sequence, "groundtruth", None) is None:
+            raise InputError("fusion without --realtime flies the autopilot from the "
+                             "sequence's ground truth, and this sequence has none")
+        config = lockstep_config(config)
     make_tracker = make_tracker or tracker_factory(config, sequence.camera)
     show = Progress(len(FirstFrames(sequence, max_frames)), progress)
+    if lockstep:
+        flight = vehicle_trajectory(sequence.groundtruth, config,
+                                    sequence.extras.get("T_ned_world"))
+        return run_lockstep(sequence, config, FirstFrames(sequence, max_frames), flight,
+                            without, make_tracker, show)
     show.note(f"replay {sequence.name}: warming up the tracker (the first run after an install "
               "compiles its kernels: about a minute)")
     with tempfile.TemporaryDirectory(prefix="sdvl-replay-") as folder:
@@ -185,15 +200,16 @@ def run_replay(sequence: object, config: Config, realtime: bool,
         else:
             warmup_s = warm_up(make_tracker, sequence)
         return _replay(sequence, config, realtime, FirstFrames(sequence, max_frames), show,
-                       make_tracker, warmup_s)
+                       make_tracker, warmup_s, without)
 
 
 def _replay(sequence: object, config: Config, realtime: bool, frames: FirstFrames,
-            show: Progress, make_tracker: Callable, warmup_s: float) -> ReplayRun:
+            show: Progress, make_tracker: Callable, warmup_s: float,
+            without: tuple[str, ...]) -> ReplayRun:
     flight = (vehicle_trajectory(sequence.groundtruth, config,
                                  sequence.extras.get("T_ned_world"))
               if sequence.groundtruth is not None else None)
-    options = SimOptions(streams=sensor_streams("ardupilot", flight))
+    options = SimOptions(streams=sensor_streams("ardupilot", flight, without))
     autopilot = AutopilotProcess(options, None if flight is None else resampled(flight),
                                  body_imu(sequence))
     received: list[VisionMessage] = []
@@ -217,4 +233,5 @@ def _replay(sequence: object, config: Config, realtime: bool, frames: FirstFrame
         peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, exit_code=code,
         stats={"sent": stats.sent, "skipped_rate": stats.skipped_rate,
                "skipped_stale": stats.skipped_stale,
-               "skipped_duplicate": stats.skipped_duplicate})
+               "skipped_duplicate": stats.skipped_duplicate},
+        without=without)

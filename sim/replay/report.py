@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from sim.metrics import Aligned, align_trajectories, evaluate, interpolate
 from sim.replay.autopilot_process import VisionMessage
+from sim.replay.fusion_scores import FUSION_KEYS, fusion_scores
 from sim.replay.harness import ReplayRun
 from sim.replay.recording import stats_ms
 from sim.trajectory import Trajectory, write_tum
@@ -21,7 +22,9 @@ VELOCITY_DT = 0.05  # ground-truth velocity: central difference over +-50 ms
 
 KEYS = {
     "sequence": "sequence or preset name",
-    "mode": "'realtime' (frames at their timestamps) or 'fast' (as fast as tracking takes them)",
+    "mode": "'realtime' (frames at their timestamps), 'fast' (as fast as tracking takes "
+            "them) or 'lockstep' (fusion on a virtual clock; link timing keys are None)",
+    "without": "sensors the autopilot did not stream",
     "estimator": "'fusion' (EKF) or 'pass-through'",
     "frames": "frames the camera source offered",
     "processed": "frames the tracker processed",
@@ -39,6 +42,7 @@ KEYS = {
     "rot_rmse_deg": "attitude error RMSE after the alignment, degrees",
     "scale": "Sim(3) scale (1 for 'start')",
     "velocity_rmse_m_s": "velocity error RMSE of the received velocities, m/s",
+    **FUSION_KEYS,
     "message_rate_hz": "received vision messages per second",
     "message_jitter_ms": "standard deviation of the intervals between arrivals, ms",
     "message_interval_ms_p99": "99th percentile of the intervals between arrivals, ms",
@@ -64,6 +68,8 @@ class Received:
 
     trajectory: Trajectory
     velocity_local: np.ndarray  # (N, 3) in the message's local frame; NaN rows when absent
+    position_cov: np.ndarray  # (N, 3, 3) local frame; NaN when absent
+    velocity_cov: np.ndarray  # (N, 3, 3) local frame; NaN when absent
     t_capture: np.ndarray
     t_arrival: np.ndarray
     resets: int
@@ -79,19 +85,36 @@ def _stamp(m: VisionMessage) -> float:
     return (m.fields["time_usec"] if m.kind == "ODOMETRY" else m.fields["usec"]) / 1e6
 
 
-def _pose(m: VisionMessage, speeds: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """position, quaternion xyzw and velocity in the local frame (VISION_POSITION_ESTIMATE:
-    from the VISION_SPEED_ESTIMATE of the same frame, NaN without one)."""
+def full_covariance(upper: list[float]) -> np.ndarray:
+    """The 6x6 covariance of MAVLink's 21 row-major upper-triangle entries (NaN: unknown)."""
+    C = np.full((6, 6), np.nan)
+    if len(upper) == 21:
+        C[np.triu_indices(6)] = upper
+        C = np.where(np.isnan(C), C.T, C)
+    return C
+
+
+def _pose(m: VisionMessage, speeds: dict) -> tuple[np.ndarray, ...]:
+    """position, quaternion xyzw, velocity, position and velocity covariances, all in the local
+    frame (VISION_POSITION_ESTIMATE: velocity from the VISION_SPEED_ESTIMATE of the same frame,
+    NaN without one)."""
     f = m.fields
     position = np.array([f["x"], f["y"], f["z"]])
     if m.kind == "ODOMETRY":
         w, x, y, z = f["q"]
         rot = Rotation.from_quat([x, y, z, w])
-        return position, rot.as_quat(), rot.apply([f["vx"], f["vy"], f["vz"]])
+        R = rot.as_matrix()
+        vel_cov = R @ full_covariance(f.get("velocity_covariance", []))[:3, :3] @ R.T
+        return (position, rot.as_quat(), rot.apply([f["vx"], f["vy"], f["vz"]]),
+                full_covariance(f.get("pose_covariance", []))[:3, :3], vel_cov)
     rot = Rotation.from_euler("ZYX", [f["yaw"], f["pitch"], f["roll"]])
     speed = speeds.get(f["usec"])
     velocity = np.full(3, np.nan) if speed is None else np.array([speed[k] for k in "xyz"])
-    return position, rot.as_quat(), velocity
+    vel_cov = (np.reshape(speed["covariance"], (3, 3))
+               if speed is not None and len(speed.get("covariance", [])) == 9
+               else np.full((3, 3), np.nan))
+    return (position, rot.as_quat(), velocity,
+            full_covariance(f.get("covariance", []))[:3, :3], vel_cov)
 
 
 def nearest(sorted_times: np.ndarray, times: np.ndarray, tolerance: float) -> np.ndarray:
@@ -118,10 +141,12 @@ def received_poses(received: list[VisionMessage], rows: list[dict]) -> Received:
     poses = [_pose(m, speeds) for m, _ in matched]
     frames = [i for _, i in matched]
     counters = [m.fields["reset_counter"] for m, _ in matched]
-    trajectory = Trajectory(np.array([rows[i]["t_source"] for i in frames]),
-                            np.array([p for p, _, _ in poses]).reshape(-1, 3),
-                            np.array([q for _, q, _ in poses]).reshape(-1, 4))
-    return Received(trajectory, np.array([v for _, _, v in poses]).reshape(-1, 3),
+
+    def column(k: int, shape: tuple[int, ...]) -> np.ndarray:
+        return np.array([p[k] for p in poses], dtype=np.float64).reshape(-1, *shape)
+    trajectory = Trajectory(np.array([rows[i]["t_source"] for i in frames]), column(0, (3,)),
+                            column(1, (4,)))
+    return Received(trajectory, column(2, (3,)), column(3, (3, 3)), column(4, (3, 3)),
                     capture[frames], np.array([m.t_arrival for m, _ in matched]),
                     int(np.count_nonzero(np.diff(counters))) if counters else 0)
 
@@ -142,20 +167,28 @@ def velocity_at(trajectory: Trajectory, times: np.ndarray) -> np.ndarray:
     return (at(times + VELOCITY_DT) - at(times - VELOCITY_DT)) / (2 * VELOCITY_DT)
 
 
-def velocity_rmse(aligned: Aligned, received: Received, groundtruth: Trajectory) -> float | None:
-    """RMSE of the received velocities, rotated and scaled by the alignment, m/s."""
+def velocity_errors(aligned: Aligned, received: Received, groundtruth: Trajectory
+                    ) -> np.ndarray:
+    """Errors of the received velocities, rotated and scaled by the alignment (m/s), one row
+    per aligned pose (NaN where the message had no velocity)."""
     index = np.searchsorted(received.trajectory.t, aligned.estimate.t)
     v = received.velocity_local[index]
-    ok = np.all(np.isfinite(v), axis=1)
-    if not ok.any():
-        return None
-    v_gt = velocity_at(groundtruth, aligned.estimate.t[ok])
-    error = aligned.scale * v[ok] @ aligned.R.T - v_gt
-    return float(np.sqrt(np.mean(np.sum(error**2, axis=1))))
+    return aligned.scale * v @ aligned.R.T - velocity_at(groundtruth, aligned.estimate.t)
+
+
+def rmse(errors: np.ndarray) -> float | None:
+    """Root mean square of the finite error rows' norms."""
+    ok = np.all(np.isfinite(errors), axis=1)
+    return float(np.sqrt(np.mean(np.sum(errors[ok] ** 2, axis=1)))) if ok.any() else None
 
 
 def _ms(value: float | None) -> float | None:
     return None if value is None else float(value)
+
+
+def lockstep(run: ReplayRun) -> bool:
+    """Whether the run was the fusion's lockstep replay (sim/replay/lockstep.py)."""
+    return bool(run.stats.get("lockstep"))
 
 
 def frame_counts(run: ReplayRun) -> dict:
@@ -169,11 +202,13 @@ def frame_counts(run: ReplayRun) -> dict:
 
 
 def timing(run: ReplayRun, received: Received) -> dict:
-    """Message rate and jitter, latencies, tracking time, CPU and memory."""
-    intervals = np.diff(received.t_arrival) * 1e3
+    """Message rate and jitter, latencies, tracking time, CPU and memory (no link timing in
+    lockstep: its arrival times are made up)."""
+    linked = not lockstep(run)
+    intervals = np.diff(received.t_arrival) * 1e3 if linked else np.zeros(0)
     span = received.t_arrival[-1] - received.t_arrival[0] if len(intervals) else 0.0
-    send = stats_ms([r["send"] for r in run.rows if r["sent"]])
-    arrival = stats_ms(list(received.t_arrival - received.t_capture))
+    send = stats_ms([r["send"] for r in run.rows if r["sent"]] if linked else [])
+    arrival = stats_ms(list(received.t_arrival - received.t_capture) if linked else [])
     track = stats_ms([r["track"] for r in run.rows if r["quality"] != "initializing"])
     processed = len(run.rows)
     return {
@@ -196,7 +231,7 @@ def accuracy(run: ReplayRun, received: Received,
     est = received.trajectory
     out = {"scored": 0, "align": align, "ate_rmse_m": None, "ate_max_m": None,
            "rot_rmse_deg": None, "scale": None, "velocity_rmse_m_s": None,
-           "received_file": None, "groundtruth_file": None}
+           "received_file": None, "groundtruth_file": None, **dict.fromkeys(FUSION_KEYS)}
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
         out["received_file"] = str(out_dir / "received.txt")
@@ -210,9 +245,16 @@ def accuracy(run: ReplayRun, received: Received,
         write_tum(groundtruth, out["groundtruth_file"])
     ev = evaluate(groundtruth, est, method)
     aligned = align_trajectories(groundtruth, est, method)
+    velocity_error = velocity_errors(aligned, received, groundtruth)
     out.update(scored=ev.matched, ate_rmse_m=ev.ate_rmse_m, ate_max_m=ev.ate_max_m,
                rot_rmse_deg=ev.rot_rmse_deg, scale=ev.scale,
-               velocity_rmse_m_s=velocity_rmse(aligned, received, groundtruth))
+               velocity_rmse_m_s=rmse(velocity_error))
+    if run.fusion:
+        index = np.searchsorted(est.t, aligned.estimate.t)
+        tracked = [r["t_source"] for r in run.rows if r["has_pose"]]
+        out.update(fusion_scores(aligned, groundtruth, velocity_error,
+                                 received.position_cov[index], received.velocity_cov[index],
+                                 min(tracked) if tracked else None))
     return out, aligned, groundtruth
 
 
@@ -222,7 +264,8 @@ def build_report(run: ReplayRun, out_dir: Path | None
     they were scored against (in the received poses' frame for 'start'), for the plot."""
     received = received_poses(run.received, run.rows)
     scores, aligned, reference = accuracy(run, received, out_dir)
-    report = {"sequence": run.name, "mode": "realtime" if run.realtime else "fast",
+    mode = "realtime" if run.realtime else "lockstep" if lockstep(run) else "fast"
+    report = {"sequence": run.name, "mode": mode, "without": list(run.without),
               "estimator": "fusion" if run.fusion else "pass-through",
               **frame_counts(run), "messages_received": len(received.t_arrival),
               "skipped_stale": run.stats.get("skipped_stale", 0),
@@ -256,6 +299,7 @@ def format_report(r: dict) -> str:
         f"{_num(r['scale'], '.4g')}, max {_num(r['ate_max_m'], '.4f')} m, {r['scored']} poses); "
         f"rotation {_num(r['rot_rmse_deg'], '.2f')} deg",
         f"velocity   RMSE {_num(r['velocity_rmse_m_s'], '.3f')} m/s",
+        *_fusion_lines(r),
         f"latency    capture-to-send p50 {_num(r['latency_ms_p50'], '.1f')} / p95 "
         f"{_num(r['latency_ms_p95'], '.1f')} / p99 {_num(r['latency_ms_p99'], '.1f')} ms; "
         f"to arrival p99 {_num(r['arrival_latency_ms_p99'], '.1f')} ms",
@@ -264,6 +308,22 @@ def format_report(r: dict) -> str:
         f"frame, peak RSS {r['peak_rss_mb']:.0f} MB",
         *_files_line(r),
     ])
+
+
+def _fusion_lines(r: dict) -> list[str]:
+    if r["estimator"] != "fusion" or r["distance_m"] is None:
+        return []
+    without = f" (without {', '.join(r['without'])})" if r["without"] else ""
+    return [
+        f"fusion     ATE {_num(r['ate_pct_distance'], '.2f')}% of {r['distance_m']:.1f} m flown"
+        f"{without}; heading rms {_num(r['heading_rms_deg'], '.2f')} / max "
+        f"{_num(r['heading_max_deg'], '.2f')} deg",
+        f"           NEES per dof: position {_num(r['nees_position'], '.2f')}, velocity "
+        f"{_num(r['nees_velocity'], '.2f')}",
+        f"           tracking from {_num(r['tracking_start_s'], '.2f')} s, first published "
+        f"{r['first_publish_s']:.2f} s; take-off {_num(r['takeoff_s'], '.2f')} s (climb "
+        f"{r['climb_m']:.1f} m): published {_num(r['publish_after_takeoff_s'], '.2f')} s "
+        "after it"]
 
 
 def _files_line(r: dict) -> list[str]:

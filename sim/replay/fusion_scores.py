@@ -1,0 +1,97 @@
+"""What the fusion filter's acceptance asks of a replay, from the received messages and the
+flown ground truth (after the start alignment only): position error as a share of the distance
+flown while published, heading error, consistency of the covariance the autopilot was sent
+(NEES per degree of freedom) and when publication started relative to the take-off.
+
+Publication starts once the filter's scale and heading have converged (daemon/fusion/
+alignment.py), so every received pose is "after convergence" and the time of the first one,
+counted from the take-off, bounds the scale's convergence time.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.metrics import Aligned
+from sim.trajectory import Trajectory
+
+TAKEOFF_CLIMB_M = 0.1  # the take-off starts when the height first changed by this much
+
+FUSION_KEYS = {
+    "distance_m": "distance flown between the first and last scored pose, metres",
+    "ate_pct_distance": "ate_rmse_m as a percentage of distance_m",
+    "heading_rms_deg": "heading (yaw) error RMS of the received attitude, degrees",
+    "heading_max_deg": "largest absolute heading error, degrees",
+    "nees_position": "position NEES per degree of freedom, mean over the scored poses, "
+                     "with the covariance the message carried (1 = consistent)",
+    "nees_velocity": "velocity NEES per degree of freedom, as nees_position",
+    "tracking_start_s": "sequence time of the first tracked frame, s",
+    "first_publish_s": "sequence time of the first received pose, s",
+    "takeoff_s": f"sequence time the flight's height first changed by {TAKEOFF_CLIMB_M} m "
+                 "(None: it never did)",
+    "climb_m": "height gained from the take-off to the highest point, metres",
+    "publish_after_takeoff_s": "first_publish_s - takeoff_s: time from the take-off until "
+                               "scale and heading had converged (tracker start included)",
+}
+
+
+def nees_per_dof(errors: np.ndarray, covariances: np.ndarray) -> float | None:
+    """Mean of e^T C^-1 e / dof over the rows whose covariance is finite and invertible."""
+    values = []
+    for e, C in zip(errors, covariances, strict=True):
+        if not (np.all(np.isfinite(e)) and np.all(np.isfinite(C))):
+            continue
+        try:
+            values.append(float(e @ np.linalg.solve(C, e)) / len(e))
+        except np.linalg.LinAlgError:
+            continue
+    return float(np.mean(values)) if values else None
+
+
+def heading_errors_deg(aligned: Aligned) -> np.ndarray:
+    """Yaw of R_est R_gt^T for each matched pose, degrees in (-180, 180]."""
+    R_est = aligned.estimate.rotations.as_matrix()
+    R_gt = aligned.groundtruth.rotations.as_matrix()
+    delta = np.einsum("nij,nkj->nik", R_est, R_gt)
+    return np.degrees(np.arctan2(delta[:, 1, 0], delta[:, 0, 0]))
+
+
+def takeoff_time(flight: Trajectory, from_t: float) -> tuple[float | None, float]:
+    """(time the height first moved TAKEOFF_CLIMB_M from its value at `from_t`, the climb
+    from there to the highest point)."""
+    keep = flight.t >= from_t
+    t, height = flight.t[keep], -flight.positions[keep, 2]
+    if len(t) == 0:
+        return None, 0.0
+    moved = np.flatnonzero(np.abs(height - height[0]) >= TAKEOFF_CLIMB_M)
+    if len(moved) == 0:
+        return None, 0.0
+    return float(t[moved[0]]), float(height.max() - height[0])
+
+
+def fusion_scores(aligned: Aligned, flight: Trajectory, velocity_error: np.ndarray,
+                  position_cov: np.ndarray, velocity_cov: np.ndarray,
+                  tracking_start_s: float | None) -> dict:
+    """The FUSION_KEYS for matched poses: `velocity_error` and the covariances (N, 3, 3) in
+    the local frame are rows of the aligned estimate."""
+    t = aligned.estimate.t
+    error = aligned.estimate.positions - aligned.groundtruth.positions
+    inside = (flight.t >= t[0]) & (flight.t <= t[-1])
+    path = flight.positions[inside]
+    distance = float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1)))
+    ate = float(np.sqrt(np.mean(np.sum(error**2, axis=1))))
+    heading = heading_errors_deg(aligned)
+    takeoff, climb = takeoff_time(flight, float(flight.t[0]))
+    return {
+        "distance_m": distance,
+        "ate_pct_distance": 100.0 * ate / distance if distance > 0 else None,
+        "heading_rms_deg": float(np.sqrt(np.mean(heading**2))),
+        "heading_max_deg": float(np.max(np.abs(heading))),
+        "nees_position": nees_per_dof(error, position_cov),
+        "nees_velocity": nees_per_dof(velocity_error, velocity_cov),
+        "tracking_start_s": tracking_start_s,
+        "first_publish_s": float(t[0]),
+        "takeoff_s": takeoff,
+        "climb_m": climb,
+        "publish_after_takeoff_s": None if takeoff is None else float(t[0]) - takeoff,
+    }

@@ -1,0 +1,157 @@
+"""The fusion replay in lockstep (`sdvl replay --fast` with fusion): deterministic accuracy
+figures, independent of the machine's load.
+
+A real-time replay needs the wall clock (the simulated autopilot streams on it) and drops frames
+when tracking falls behind, so its numbers move from run to run. Here every frame is tracked in
+turn (mapping inline), and the autopilot's messages are made for the sequence's own times on a
+virtual clock: the synthetic flight's recorded sensors (IMU with its noise and bias, attitude
+with its compass error, barometer with its drift, rangefinder) when it has them, else the
+simulated autopilot's readings of the flight. They reach the service's estimator (the same
+FusionEstimator, config and mounting as `sdvl run`) in arrival order, and each estimate is
+encoded as the ODOMETRY message the service would send, so the report scores it the same way.
+Not exercised here: the MAVLink link, rate limiting and timing (the report leaves those None).
+"""
+
+from __future__ import annotations
+
+import resource
+import time
+from collections.abc import Callable
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink2
+from scipy.spatial.transform import Rotation
+
+from daemon.config import Config, replace
+from daemon.fusion.estimator import FusionEstimator
+from daemon.messages import odometry
+from sim.autopilot.vehicle import Vehicle, sensor_message
+from sim.replay.autopilot_process import VisionMessage
+from sim.replay.flight import resampled, sensor_streams
+from sim.replay.harness import FirstFrames, ReplayRun
+from sim.replay.progress import Progress
+from sim.trajectory import Trajectory
+
+OUR_CLOCK = 1000.0  # our monotonic clock at sequence time 0
+BOOT_CLOCK = 10.0  # the autopilot's boot clock at sequence time 0
+LINK_LATENCY_S = 0.01  # autopilot message -> companion
+RESULT_DELAY_S = 0.03  # frame capture -> tracker result
+SEA_LEVEL_HPA = 1013.25
+
+
+def _nearest(times: np.ndarray, t: float) -> int:
+    return int(np.clip(np.searchsorted(times, t), 0, len(times) - 1))
+
+
+def _pressure_hpa(altitude_m: float) -> float:
+    """Standard-atmosphere static pressure at an altitude (inverse of the parser's)."""
+    return SEA_LEVEL_HPA * (1.0 - altitude_m / 44330.77) ** (1.0 / 0.190263)
+
+
+class RecordedSensors:
+    """Autopilot messages from a synthetic flight's recorded sensors (sim.synth: 200 Hz body
+    IMU, 50 Hz attitude, barometer and rangefinder), sampled like a stream at time t."""
+
+    def __init__(self, sequence: object):
+        self.imu = sequence.imu
+        self.s = sequence.extras["sensors"]
+
+    def message(self, mav: mavlink2.MAVLink, name: str, t: float, boot_ms: int) -> object:
+        """The stream message `name` at sequence time t."""
+        s = self.s
+        i = _nearest(s.t, t)
+        if name == "ATTITUDE":
+            yaw, pitch, roll = Rotation.from_quat(s.attitude[i]).as_euler("ZYX")
+            gyro = self.imu.gyro[_nearest(self.imu.t, t)] if self.imu.gyro is not None else (
+                np.zeros(3))
+            return mav.attitude_encode(boot_ms, roll, pitch, yaw, *gyro)
+        if name in ("SCALED_IMU", "HIGHRES_IMU", "RAW_IMU"):
+            accel_mg = (self.imu.accel[_nearest(self.imu.t, t)] / 9.80665 * 1000).round()
+            return mav.scaled_imu_encode(boot_ms, *accel_mg.astype(int), 0, 0, 0, 0, 0, 0)
+        if name == "DISTANCE_SENSOR":
+            cm = round(100 * float(s.range[i])) if s.range_valid[i] else 4000
+            return mav.distance_sensor_encode(boot_ms, 20, 4000, cm,
+                                              mavlink2.MAV_DISTANCE_SENSOR_LASER, 0,
+                                              mavlink2.MAV_SENSOR_ROTATION_PITCH_270, 0)
+        if name in ("SCALED_PRESSURE", "ALTITUDE"):
+            return mav.scaled_pressure_encode(boot_ms, _pressure_hpa(float(s.baro_alt[i])),
+                                              0.0, 2500)
+        raise ValueError(f"no stream called {name}")
+
+
+def autopilot_messages(sequence: object, flight: Trajectory, streams: dict[str, float],
+                       end: float) -> list[tuple[float, object]]:
+    """(arrival on our clock, message) of every stream up to sequence time `end`, in arrival
+    order; stamps on the autopilot's boot clock."""
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    if "sensors" in sequence.extras and sequence.imu is not None:
+        make = RecordedSensors(sequence).message
+    else:
+        vehicle = Vehicle(resampled(flight))
+
+        def make(mav: mavlink2.MAVLink, name: str, t: float, boot_ms: int) -> object:
+            return sensor_message(mav, name, t - vehicle.t0, boot_ms, vehicle)
+    t0 = float(flight.t[0])
+    out = []
+    for name, hz in streams.items():
+        for t in np.arange(t0, end, 1.0 / hz):
+            boot_ms = round((t + BOOT_CLOCK) * 1000)
+            out.append((t + OUR_CLOCK + LINK_LATENCY_S, make(mav, name, float(t), boot_ms)))
+    out.sort(key=lambda item: item[0])
+    return out
+
+
+def run_lockstep(sequence: object, config: Config, frames: FirstFrames, flight: Trajectory,
+                 without: tuple[str, ...], make_tracker: Callable, show: Progress
+                 ) -> ReplayRun:
+    """Track every frame in turn and fuse it with the autopilot's messages (all its streams but
+    the sensors in `without`) on a virtual clock; the estimates as the ODOMETRY messages the
+    service would send."""
+    end = float(frames.sequence.timestamps[len(frames) - 1]) + 1.0
+    streams = sensor_streams("ardupilot", flight, without)
+    messages = autopilot_messages(sequence, flight, streams, end)
+    clock = [0.0]
+    estimator = FusionEstimator(config.fusion, config.mounting, config.mavlink,
+                                now=lambda: clock[0])
+    estimator.set_clock_offset(OUR_CLOCK - BOOT_CLOCK)
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=197)
+    rows: list[dict] = []
+    received: list[VisionMessage] = []
+    tracker, k = None, 0
+    cpu0, wall0 = time.process_time(), time.perf_counter()
+    from daemon.frames import Frame
+
+    try:
+        for index, (t, image) in enumerate(frames.frames()):
+            t_capture = t + OUR_CLOCK
+            tracker = tracker or make_tracker(Frame(index, t, t_capture, image))
+            start = time.perf_counter()
+            result = tracker.process(image, t)
+            track_s = time.perf_counter() - start
+            clock[0] = t_capture + RESULT_DELAY_S
+            while k < len(messages) and messages[k][0] <= clock[0]:
+                estimator.on_autopilot_message(messages[k][1])
+                k += 1
+            estimate = estimator.on_frame(result, t_capture)
+            if estimate is not None:
+                msg = odometry(mav, estimate)
+                received.append(VisionMessage("ODOMETRY", clock[0], msg.to_dict()))
+            rows.append({"t_capture": t_capture, "t_source": t, "track": track_s,
+                         "sent": estimate is not None, "send": None, "quality": result.quality,
+                         "has_pose": result.has_pose, "new_segment": result.new_segment})
+            show.update(index + 1, index + 1, sum(r["has_pose"] for r in rows))
+    finally:
+        if tracker is not None:
+            tracker.close()
+        show.close()
+    return ReplayRun(
+        name=sequence.name, realtime=False, fusion=True, offered=len(rows), rows=rows,
+        received=received, flight=flight, wall_s=time.perf_counter() - wall0,
+        cpu_s=time.process_time() - cpu0, warmup_s=0.0,
+        peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, exit_code=0,
+        stats={"sent": len(received), "skipped_stale": 0, "lockstep": True}, without=without)
+
+
+def lockstep_config(config: Config) -> Config:
+    """The tracker's mapping inline, so the run is deterministic."""
+    return replace(config, service={"mapping_thread": False})

@@ -1,0 +1,82 @@
+"""The tracker's mapping thread waits for each frame's handoff to the loop before mapping it
+(daemon.tracking.HandoffGate): mapping never competes with the estimate on its way out."""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from types import SimpleNamespace
+
+from daemon_helpers import FakeTracker, RunningService, service_config, wait_for
+
+from daemon.tracking import HandoffGate
+from sim.autopilot import SimAutopilot
+
+
+def test_gate_waits_for_its_frame_and_no_longer_than_the_timeout():
+    gate = HandoffGate(timeout_s=0.3)
+    released = []
+    waiter = threading.Thread(target=lambda: released.append((gate.wait(SimpleNamespace(t=2.0)),
+                                                              time.monotonic())))
+    waiter.start()
+    time.sleep(0.05)
+    gate.done(1.0)  # an earlier frame: keep waiting
+    time.sleep(0.05)
+    assert not released
+    t_done = time.monotonic()
+    gate.done(2.5)  # this frame and later ones
+    waiter.join(1.0)
+    assert released and 0 <= released[0][1] - t_done < 0.05
+    start = time.monotonic()
+    gate.wait(SimpleNamespace(t=9.0))  # never handed off: bounded
+    assert 0.28 < time.monotonic() - start < 0.5
+
+
+class _Mapper:
+    def __init__(self):
+        self.before_step = lambda frame: None
+
+
+class MappingFakeTracker(FakeTracker):
+    """A threaded tracker stand-in: every processed frame goes to its own mapping thread,
+    which records when each step starts; a new map (frame 15) brings a new mapper."""
+
+    threaded = True
+
+    def __init__(self):
+        super().__init__()
+        self.mapper = _Mapper()
+        self.steps: list[tuple[float, float]] = []
+        self._queue: queue.Queue = queue.Queue()
+        threading.Thread(target=self._mapping, daemon=True).start()
+
+    def process(self, image, t):
+        if self.index == 15:
+            self.mapper = _Mapper()
+        result = super().process(image, t)
+        self._queue.put(SimpleNamespace(t=t))
+        return result
+
+    def _mapping(self):
+        while True:
+            frame = self._queue.get()
+            self.mapper.before_step(frame)
+            self.steps.append((frame.t, time.monotonic()))
+
+
+def test_service_releases_each_mapping_step_after_the_frame_was_handled():
+    handled: dict[float, float] = {}
+    tracker = MappingFakeTracker()
+    with SimAutopilot() as sim:
+        run = RunningService(service_config(sim.url), tracker=tracker,
+                             on_tracked=lambda tf, sent: handled.setdefault(tf.t_source,
+                                                                            time.monotonic()))
+        assert wait_for(lambda: len(tracker.steps) >= 40, 10.0)
+        assert run.stop() == 0
+    # the first step of each mapper (the first frame, the first of the new map) runs before
+    # the tracking thread has seen that mapper; every other one waits for its handoff
+    steps = [step for k, step in enumerate(tracker.steps) if k not in (0, 15)]
+    early = [t for t, started in steps if t not in handled or started < handled[t]]
+    assert early == []
+    assert max(started - handled[t] for t, started in steps) < 0.04  # no timeouts
