@@ -107,11 +107,13 @@ def room_handheld(seed: int, textures: str | None) -> FlightSpec:
 
 
 def walkers(seed: int, textures: str | None) -> FlightSpec:
-    """Hover at 5 m while a crowd of twenty people walks under the drone (each about 90 px
-    wide from above; together they cover a fifth to a half of the view); 20 s."""
+    """Hover at 5 m while a crowd of 24 people walks under the drone, each stopping for 2-4 s
+    on its way (long enough to be mapped, then it walks off with its map points); each is
+    about 90 px wide from above, together they cover up to about a third of the view; 20 s."""
     rng = np.random.default_rng(seed)
     spec = FlightSpec(_hover_path(rng, 5.0, 20.0), outdoor_scene(seed, textures))
-    spec.scene.movers = walkers_across((0.0, 0.0), 4.0, 32, 20.0, DETAIL, rng, speed=1.0)
+    spec.scene.movers = walkers_across((0.0, 0.0), 4.0, 24, 20.0, DETAIL, rng, speed=1.0,
+                                       pause=4.0)
     return spec
 
 

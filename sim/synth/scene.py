@@ -105,7 +105,9 @@ def add_room(quads: QuadList, size, height: float, textures: tuple[int, int, int
 
 @dataclass
 class Walker:
-    """A people-sized textured box walking a straight line at constant speed from t_start."""
+    """A people-sized textured box walking a straight line at constant speed from t_start;
+    it stands still for `pause` s after walking `pause_after` s (people who stop for a while
+    become part of the map, then walk off with it)."""
 
     start: np.ndarray
     velocity: np.ndarray
@@ -114,13 +116,17 @@ class Walker:
     texel_m: float
     seed: int
     size: tuple = (0.5, 0.3, 1.8)
+    pause_after: float = 0.0
+    pause: float = 0.0
 
     def quads(self, t: float) -> QuadList:
         """The box at time t (empty before it starts)."""
         out = QuadList()
         if t < self.t_start:
             return out
-        pos = self.start + self.velocity * (t - self.t_start)
+        walked = t - self.t_start
+        walked -= min(max(walked - self.pause_after, 0.0), self.pause)
+        pos = self.start + self.velocity * walked
         yaw = float(np.arctan2(self.velocity[1], self.velocity[0]))
         add_box(out, pos, self.size, yaw, self.texture, self.texel_m,
                 np.random.default_rng(self.seed))
