@@ -76,6 +76,7 @@ class TrackingThread(threading.Thread):
             log.exception("tracking failed")
             self.error = exc
         finally:
+            self.gate.done(math.inf)  # no more handoffs: mapping finishes its queue unheld
             if self.tracker is not None:
                 self.tracker.close()
             self.on_end()
