@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import sys
 import time
 from pathlib import Path
@@ -28,14 +29,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threaded", action="store_true",
                         help="mapping in its own thread (default: one mapping step per frame)")
     parser.add_argument("--max-frames", type=int, default=None, metavar="N")
+    parser.add_argument("--size", default=None, metavar="WxH",
+                        help="image size for a synthetic preset (default: the preset's)")
+    parser.add_argument("--memory", type=int, default=None, metavar="N",
+                        help="every N frames record resident memory and the map's size "
+                             "(keyframes, points, observations); report the peak RSS")
     parser.add_argument("--json", action="store_true", help="print one JSON object at the end")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
-def resolve_sequence(name: str):
-    """Open a sequence by path, or by name inside the shared data folder."""
+def resolve_sequence(name: str, size: tuple[int, int] | None = None):
+    """Open a sequence by path, or by name inside the shared data folder; `size` renders a
+    synthetic preset at another image size."""
     from sim.datasets import open_sequence
 
+    if size is not None:
+        from sim.synth.flight import synthetic_sequence
+        from sim.synth.presets import PRESETS
+
+        if name not in PRESETS:
+            raise InputError(f"--size is for synthetic presets ({', '.join(PRESETS)})")
+        return synthetic_sequence(name, size=size)
     path = Path(name)
     if not path.exists():
         data = Path(os.environ.get("SDVL_DATA", Path(__file__).resolve().parents[2]
@@ -46,13 +60,13 @@ def resolve_sequence(name: str):
 
 
 def stage_stats(timings: list[dict[str, float]]) -> dict[str, dict[str, float]]:
-    """Per stage: median and p95 in ms over the frames that ran it."""
+    """Per stage: median, p95 and mean in ms over the frames that ran it."""
     names = sorted({k for t in timings for k in t})
     out = {}
     for name in names:
         values = np.array([t[name] for t in timings if name in t])
         out[name] = {"median": float(np.median(values)), "p95": float(np.percentile(values, 95)),
-                     "n": len(values)}
+                     "mean": float(np.mean(values)), "n": len(values)}
     return out
 
 
@@ -62,10 +76,17 @@ def run(args: argparse.Namespace) -> int:
 
     if args.max_frames is not None and args.max_frames <= 0:
         raise InputError("--max-frames must be positive")
+    if args.memory is not None and args.memory <= 0:
+        raise InputError("--memory must be positive")
     config = TrackerConfig.from_toml(args.config) if args.config else TrackerConfig()
-    sequence = resolve_sequence(args.sequence)
+    size = None
+    if args.size is not None:
+        from sim.render_command import parse_size  # loads the renderer: only when asked
+
+        size = parse_size(args.size)
+    sequence = resolve_sequence(args.sequence, size)
     report, estimate = track_sequence(sequence, config, args.threaded, args.max_frames,
-                                      args.quiet)
+                                      args.quiet, args.memory)
     if args.out is not None and estimate is not None:
         write_tum(estimate, args.out)
     print(json.dumps(report) if args.json else format_report(report))
@@ -73,13 +94,15 @@ def run(args: argparse.Namespace) -> int:
 
 
 def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
-                   quiet: bool) -> tuple[dict, Trajectory | None]:
-    """Run the tracker over a sequence: the report (see build_report) and the trajectory."""
+                   quiet: bool, memory_every: int | None = None) -> tuple[dict, Trajectory | None]:
+    """Run the tracker over a sequence: the report (see build_report) and the trajectory;
+    with `memory_every`, the report has "memory" samples and "peak_rss_mb"."""
     from vo.tracker import Tracker
 
     tracker = Tracker(sequence.camera, config, threaded=threaded)
     times, poses, timings, qualities, segment = [], [], [], [], []
     n_frames = 0
+    memory = []
     started = time.perf_counter()
     first_pose_s = None
     last_print = started
@@ -96,6 +119,8 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
                 segment.append(len(segment) and segment[-1] + int(result.new_segment))
                 if first_pose_s is None:
                     first_pose_s = time.perf_counter() - started
+            if memory_every and n_frames % memory_every == 0:
+                memory.append(memory_sample(tracker, n_frames))
             now = time.perf_counter()
             if not quiet and now - last_print > PROGRESS_EVERY_S:
                 last_print = now
@@ -108,7 +133,19 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
     estimate = Trajectory.from_matrices(np.array(times), np.array(poses)) if poses else None
     report = build_report(sequence, n_frames, estimate, np.array(segment), timings, qualities,
                           first_pose_s, tracker.dropped_mapping_frames)
+    if memory_every:
+        report["memory"] = memory
+        report["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return report, estimate
+
+
+def memory_sample(tracker, frame: int) -> dict:
+    """Resident memory now (MB, Linux /proc) and the size of the tracker's map."""
+    pages = int(Path("/proc/self/statm").read_text().split()[1])
+    m = tracker.map
+    return {"frame": frame, "rss_mb": pages * resource.getpagesize() / 2**20,
+            "keyframes": len(m.keyframes), "points": m.n_points(),
+            "point_capacity": m.points.capacity, "observations": len(m.obs)}
 
 
 def build_report(sequence, n_frames: int, estimate: Trajectory | None, segment: np.ndarray,
@@ -132,6 +169,7 @@ def build_report(sequence, n_frames: int, estimate: Trajectory | None, segment: 
         "track_ms_p95": track["p95"],
         "stages": {k: v["median"] for k, v in stats.items()},
         "stages_p95": {k: v["p95"] for k, v in stats.items()},
+        "stages_mean": {k: v["mean"] for k, v in stats.items()},
         "qualities": {q: qualities.count(q) for q in sorted(set(qualities))},
         "first_pose_s": first_pose_s,
         "dropped_mapping_frames": dropped,
@@ -172,6 +210,11 @@ def format_report(r: dict) -> str:
                      + ("" if seg_ate is None else f", ATE RMSE {seg_ate:.4f} m, rotation "
                         f"RMSE {r['longest_segment_rot_rmse_deg']:.2f} deg"))
     lines.append("qualities  " + ", ".join(f"{k} {v}" for k, v in r["qualities"].items()))
+    if "memory" in r:
+        lines.append(f"peak RSS   {r['peak_rss_mb']:.0f} MB")
+        lines.append("frame      RSS MB  keyframes  points  observations")
+        lines += [f"{m['frame']:<9} {m['rss_mb']:7.0f} {m['keyframes']:10d} {m['points']:7d} "
+                  f"{m['observations']:13d}" for m in r["memory"]]
     lines.append("stage          median ms    p95 ms")
     for name, med in r["stages"].items():
         lines.append(f"{name:<14} {med:9.2f} {r['stages_p95'][name]:9.2f}")

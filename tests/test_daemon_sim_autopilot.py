@@ -158,9 +158,10 @@ def test_timesync_and_streams_on_one_boot_clock():
     assert by_stamps[-1] == pytest.approx(sim.boot_time, abs=0.01)
     assert min(by_timesync) == pytest.approx(sim.boot_time, abs=0.01)
     clock.set_offset(min(by_timesync))
-    arrival, imu = next((t, m) for t, m in reversed(client.received)
-                        if m.get_type() == "SCALED_IMU")
-    assert clock.to_local(imu.time_boot_ms / 1e3, arrival) == pytest.approx(arrival, abs=0.01)
+    lags = [arrival - clock.to_local(m.time_boot_ms / 1e3, arrival)
+            for arrival, m in client.received if m.get_type() == "SCALED_IMU"]
+    # mapped to when it was sent: never after it arrived, usually just before
+    assert min(lags) > -0.002 and np.median(lags) < 0.005
 
 
 def test_absurd_motion_saturates_the_imu_like_a_real_sensor():

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 from sim.cli import main
+from sim.track_command import format_report
 from sim.trajectory import read_tum
 
 
@@ -40,3 +41,20 @@ def test_bad_config_is_one_line_error(tmp_path, capsys, data_dir):
     err = capsys.readouterr().err.strip()
     assert "max_matchez" in err and len(err.splitlines()) == 1
     assert main(["track", str(tmp_path / "nowhere")]) == 2
+
+
+def test_memory_samples_on_a_small_synthetic_flight(capsys):
+    assert main(["track", "survey-long", "--size", "160x120", "--max-frames", "40",
+                 "--memory", "20", "--json", "--quiet"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert [m["frame"] for m in report["memory"]] == [20, 40]
+    assert report["peak_rss_mb"] >= report["memory"][-1]["rss_mb"] > 10
+    assert all(m["keyframes"] >= 0 and m["points"] >= 0 for m in report["memory"])
+    text = format_report(report)
+    assert "peak RSS" in text and "keyframes" in text
+
+
+def test_size_is_only_for_synthetic_presets(data_dir, capsys):
+    code = main(["track", str(data_dir / "vamr_ex01_checkerboard736"), "--size", "160x120"])
+    assert code == 2
+    assert "--size is for synthetic presets" in capsys.readouterr().err

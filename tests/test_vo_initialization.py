@@ -63,3 +63,59 @@ def test_homography_choice_by_sampson_on_exact_points():
     assert _direction_error_deg(t_est, t) < 0.1
     tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
     assert np.max(sampson_error(tx @ R, x1, x2)) < 1e-20
+
+
+def _track_until_map(cam, tex, poses, config):
+    init = Initializer(cam, config)
+    frames = [Frame(i, float(i), render_plane(tex, cam, T), cam, 5) for i, T in enumerate(poses)]
+    assert init.set_reference(frames[0])
+    for frame in frames[1:]:
+        result = init.add(frame)
+        if isinstance(result, InitialMap):
+            return result, frame
+    raise AssertionError("no map")
+
+
+def test_climb_over_the_ground_picks_the_plane_facing_the_camera(data_dir):
+    # climbing 19 deg off the ground's normal: both homography decompositions explain the
+    # tracks (Sampson errors within noise); the wrong one tilts the plane by 19 deg
+    cam = small_camera()
+    tex = load_texture(data_dir)
+    poses = [look_down_pose(0.0012 * i, -0.0006 * i, 1.5 + 0.004 * i, yaw=0.002 * i,
+                            tilt=(0.003 * i, 0.002 * i)) for i in range(40)]
+    result, frame = _track_until_map(cam, tex, poses, TrackerConfig(init_homography_ratio=0.0))
+    T_true = poses[frame.id] @ inv_se3(poses[0])
+    assert rotation_angle_deg(T_true[:3, :3].T @ result.T_cur_ref[:3, :3]) < 0.3
+    assert _direction_error_deg(T_true[:3, 3], result.T_cur_ref[:3, 3]) < 4.0
+
+
+def test_homography_tie_on_exact_points_takes_the_facing_plane():
+    rng = np.random.default_rng(1)
+    P = np.column_stack((rng.uniform(-1, 1, (80, 2)), np.full(80, 3.0)))
+    t = np.array([0.03, -0.015, -0.09])  # mostly along the normal of the plane z = 3
+    x1 = P[:, :2] / P[:, 2:]
+    Q = P + t
+    x2 = Q[:, :2] / Q[:, 2:]
+    R_est, t_est, _ = pose_from_homography(x1, x2, 1e-3, 0)
+    assert rotation_angle_deg(R_est) < 0.05
+    assert _direction_error_deg(t, t_est) < 0.5
+
+
+def test_rotation_only_while_no_parallax(data_dir):
+    cam = small_camera()
+    tex = load_texture(data_dir)
+    config = TrackerConfig()
+    init = Initializer(cam, config)
+    turn = [look_down_pose(0.0, 0.0, 1.5, yaw=0.004 * i, tilt=(0.003 * i, 0.0))
+            for i in range(6)]
+    frames = [Frame(i, float(i), render_plane(tex, cam, T), cam, 5) for i, T in enumerate(turn)]
+    assert init.set_reference(frames[0])
+    for frame in frames[1:]:
+        assert init.add(frame) is None
+    R, rms = init.rotation_only()
+    R_true = (turn[-1] @ inv_se3(turn[0]))[:3, :3]
+    assert rotation_angle_deg(R_true.T @ R) < 0.1 and rms < 0.5
+    # a sideways move of 5% of the height shows parallax: no rotation-only pose
+    moved = Frame(9, 9.0, render_plane(tex, cam, look_down_pose(0.075, 0.0, 1.5)), cam, 5)
+    init.add(moved)
+    assert init.rotation_only() is None

@@ -5,31 +5,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from vo_scenes import load_texture, look_down_pose, plane_depth, render_plane, small_camera
+from vo_scenes import pair_truth, sample_corners, textured_pair
 
-from vo.frame import Frame
 from vo.matcher import match_direct, match_epipolar, triangulate_depth
+from vo.orb import OrbQuery, query
 from vo.patch import BORDER_PATCH, sample, zmssd
-from vo.se3 import inv_se3
 
 
 @pytest.fixture(scope="module")
 def scene(data_dir):
-    cam = small_camera()
-    tex = load_texture(data_dir, blur=1.0)
-    T_ref = look_down_pose(0.0, 0.0, 1.5)
-    T_cur = look_down_pose(0.12, 0.05, 1.3, yaw=0.15, tilt=(0.05, 0.0))
-    ref = Frame(0, 0.0, render_plane(tex, cam, T_ref), cam, 5)
-    cur = Frame(1, 1.0, render_plane(tex, cam, T_cur), cam, 5)
-    T_cur_ref = T_cur @ inv_se3(T_ref)
-    return cam, ref, cur, T_ref, T_cur_ref
-
-
-def _truth(cam, T_ref, T_cur_ref, px):
-    d = plane_depth(T_ref, cam, px)
-    f = cam.unproject(px)
-    X = (f * d[:, None]) @ T_cur_ref[:3, :3].T + T_cur_ref[:3, 3]
-    return f, d, cam.project(X)
+    return textured_pair(data_dir)
 
 
 def test_sample_and_zmssd_against_slow_reference():
@@ -56,7 +41,7 @@ def test_direct_match_refines_a_wrong_prediction(scene):
     cam, ref, cur, T_ref, T_cur_ref = scene
     rng = np.random.default_rng(2)
     px = rng.uniform([40, 40], [280, 200], (30, 2))
-    f, d, true = _truth(cam, T_ref, T_cur_ref, px)
+    f, d, true = pair_truth(cam, T_ref, T_cur_ref, px)
     errors = []
     for i in range(len(px)):
         pred = true[i] + rng.normal(0.0, 1.2, 2)
@@ -72,11 +57,8 @@ def test_direct_match_refines_a_wrong_prediction(scene):
 
 def test_epipolar_search_finds_the_true_corner(scene):
     cam, ref, cur, T_ref, T_cur_ref = scene
-    rc = ref.corners(10)
-    x0, y0 = rc.level0()
-    keep = (rc.level == 0) & cam.in_image(np.column_stack((x0, y0)), 30)
-    px = np.column_stack((x0[keep], y0[keep]))[::7][:40]
-    f, d, true = _truth(cam, T_ref, T_cur_ref, px)
+    px = sample_corners(cam, ref)
+    f, d, true = pair_truth(cam, T_ref, T_cur_ref, px)
     c = cur.corners(10)
     found, correct = 0, 0
     for i in range(len(px)):
@@ -87,7 +69,8 @@ def test_epipolar_search_finds_the_true_corner(scene):
                                      ref.pyr.heights, px[i, 0], px[i, 1], 0, f[i], rho * 1.2,
                                      rho * 0.5, T_cur_ref, cur.pyr.flat, cur.pyr.offsets,
                                      cur.pyr.widths, cur.pyr.heights, c.x, c.y, c.xn, c.yn,
-                                     c.row_start, 0, 2, 2.0, 2000.0, 10)
+                                     c.row_start, 0, 2, 2.0, 2000.0, 10,
+                                     query(OrbQuery.patches(1, 5).tables, 0))
         if ok:
             found += 1
             correct += np.hypot(u - true[i, 0], v - true[i, 1]) < 0.2

@@ -4,6 +4,7 @@ covariance agrees with the scatter of repeated noisy solves; depth whitening."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from vo.pose_optimizer import depth_whitening, optimize_pose, pose_covariance
 from vo.se3 import exp_se3, inv_se3, rotation_angle_deg
@@ -11,9 +12,11 @@ from vo.se3 import exp_se3, inv_se3, rotation_angle_deg
 FOCAL = 400.0
 
 
-def _scene(rng, n=120):
+def _scene(rng, n=120, away=0.0):
+    """Points, T_c_w and observations; the camera `away` m from the world origin (behind)."""
     P = rng.uniform([-2, -1.5, 3], [2, 1.5, 6], (n, 3))
-    T = exp_se3(np.array([0.1, -0.05, 0.2, 0.03, -0.02, 0.05]))
+    T = exp_se3(np.array([0.1, -0.05, 0.2 + away, 0.03, -0.02, 0.05]))
+    P[:, 2] -= away
     X = P @ T[:3, :3].T + T[:3, 3]
     return P, T, X[:, :2] / X[:, 2:]
 
@@ -40,9 +43,11 @@ def test_recovers_pose_with_outliers():
     assert not inliers[bad].any() and inliers.sum() >= 95
 
 
-def test_covariance_matches_monte_carlo():
+@pytest.mark.parametrize("away", [0.0, 5.0])
+def test_covariance_matches_monte_carlo(away):
+    # 5 m from the world origin, rotation errors move the camera position the most
     rng = np.random.default_rng(1)
-    P, T_true, obs0 = _scene(rng, 60)
+    P, T_true, obs0 = _scene(rng, 60, away)
     ident = np.tile(np.eye(2), (len(P), 1, 1))
     levels = np.zeros(len(P), np.int64)
     noise = 1.0 / FOCAL
@@ -53,7 +58,8 @@ def test_covariance_matches_monte_carlo():
         T_w_c = inv_se3(T)
         cov = pose_covariance(H, noise, T_w_c)
         d = T_w_c @ inv_se3(inv_se3(T_true))  # exp(d) T_w_c_true = T_w_c
-        samples.append(np.concatenate((d[:3, 3], [d[2, 1], d[0, 2], d[1, 0]])))
+        position_error = T_w_c[:3, 3] - inv_se3(T_true)[:3, 3]
+        samples.append(np.concatenate((position_error, [d[2, 1], d[0, 2], d[1, 0]])))
     emp = np.cov(np.array(samples).T)
     ratio = np.diag(emp) / np.diag(cov)
     assert np.all(ratio > 0.6) and np.all(ratio < 1.6)

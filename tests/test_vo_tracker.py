@@ -55,7 +55,14 @@ def test_synthetic_flight_is_tracked_accurately(synthetic, threaded):
     assert len(est) >= 0.9 * N_SYNTH
     assert sum(r.new_segment for r in results) == 1
     first = next(r for r in results if r.has_pose)
-    assert first.new_segment and first.keyframe
+    assert first.new_segment
+    # before the map, poses while no parallax shows: at the reference, quality insufficient;
+    # the map then continues the same segment
+    start = next(k for k, r in enumerate(results) if r.keyframe)
+    before = [r for r in results[:start] if r.has_pose]
+    assert before and all(r.quality == "insufficient" for r in before)
+    assert all(np.allclose(r.T_w_c[:3, 3], 0.0) for r in before)
+    assert not results[start].new_segment
     ev = evaluate(gt, est, "sim3")
     # the mapping thread may skip frames (bounded queue), so threaded runs vary a little
     slack = 2.0 if threaded else 1.0

@@ -59,3 +59,34 @@ def plane_depth(T_c_w: np.ndarray, camera: CameraModel, px: np.ndarray) -> np.nd
     centre = -R.T @ T_c_w[:3, 3]
     ray_w = f @ R  # R.T @ f for each row
     return -centre[2] / ray_w[:, 2]
+
+
+def textured_pair(data_dir: Path):
+    """Two 320x240 views of the textured plane (moved, turned, tilted): camera, reference and
+    current Frame, the reference's T_c_w and T_cur_ref."""
+    from vo.frame import Frame
+    from vo.se3 import inv_se3
+
+    cam = small_camera()
+    tex = load_texture(data_dir, blur=1.0)
+    T_ref = look_down_pose(0.0, 0.0, 1.5)
+    T_cur = look_down_pose(0.12, 0.05, 1.3, yaw=0.15, tilt=(0.05, 0.0))
+    ref = Frame(0, 0.0, render_plane(tex, cam, T_ref), cam, 5)
+    cur = Frame(1, 1.0, render_plane(tex, cam, T_cur), cam, 5)
+    return cam, ref, cur, T_ref, T_cur @ inv_se3(T_ref)
+
+
+def pair_truth(cam: CameraModel, T_ref: np.ndarray, T_cur_ref: np.ndarray, px: np.ndarray):
+    """Bearings, depths and true current-view pixels of reference pixels px on the plane."""
+    d = plane_depth(T_ref, cam, px)
+    f = cam.unproject(px)
+    X = (f * d[:, None]) @ T_cur_ref[:3, :3].T + T_cur_ref[:3, 3]
+    return f, d, cam.project(X)
+
+
+def sample_corners(cam: CameraModel, frame, step: int = 7, n: int = 40) -> np.ndarray:
+    """Every step-th level-0 FAST corner of a frame away from the border, at most n (N, 2)."""
+    c = frame.corners(10)
+    x0, y0 = c.level0()
+    keep = (c.level == 0) & cam.in_image(np.column_stack((x0, y0)), 30)
+    return np.column_stack((x0[keep], y0[keep]))[::step][:n]

@@ -80,8 +80,11 @@ class TrackerConfig:
     lost_points_ratio: float = 0.3
     # also a keyframe (after kf_min_frames) while fewer points than this are seen
     kf_min_points: int = 50
-    # count the points seen as the frame's inlier matches (else: map points projecting inside)
-    kf_count_inliers: bool = False
+    # count the points seen as the frame's inlier matches (as the original SDVL does), else as
+    # the map points projecting inside the image: those stay "visible" while the camera climbs
+    # along its optical axis, but they crowd into fewer grid cells (one match per cell), so the
+    # matches fall and no keyframe comes
+    kf_count_inliers: bool = True
     max_keyframes: int = 30
     covisible_min_shared: int = 10
     mapping_queue_size: int = 4
@@ -122,6 +125,13 @@ class TrackerConfig:
     convergence_L: float = 0.1
     seed_max_failures: int = 5
     epipolar_margin_px: float = 2.0
+    # "patch" (affine-warped patches, ZMSSD below zmssd_threshold per pixel) or "orb" (ORB
+    # descriptors, 6.5.1, Hamming distance <= orb_max_distance) in every point search
+    matcher: str = "patch"
+    orb_max_distance: int = 100
+    # ORB tracking compares descriptors of FAST corners from this level up (every map point is
+    # searched among corners: full resolution has most of them)
+    orb_track_min_level: int = 0
     zmssd_threshold: float = 2000.0
     match_max_level: int = 2
     min_inlier_probability: float = 0.1
@@ -138,8 +148,19 @@ class TrackerConfig:
                              "pyramid_levels")
         if self.ba_method not in ("trf", "dogbox", "lm"):
             raise InputError("ba_method must be 'trf', 'dogbox' or 'lm'")
+        if not 0 <= self.orb_track_min_level <= self.match_max_level:
+            raise InputError("need 0 <= orb_track_min_level <= match_max_level")
+        if self.matcher not in ("patch", "orb"):
+            raise InputError(f"matcher must be 'patch' or 'orb', not {self.matcher!r}")
+        if not 0 <= self.orb_max_distance <= 256:
+            raise InputError("orb_max_distance must be between 0 and 256")
         if self.grid_cell < 8 or self.max_matches < 6 or self.max_keyframes < 3:
             raise InputError("grid_cell >= 8, max_matches >= 6 and max_keyframes >= 3 required")
+
+    @property
+    def track_corner_level(self) -> int:
+        """Lowest pyramid level whose FAST corners tracking searches."""
+        return self.orb_track_min_level if self.matcher == "orb" else self.track_search_min_level
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], path: str | Path | None = None) -> TrackerConfig:

@@ -12,6 +12,7 @@ import numba
 import numpy as np
 
 from calib.camera import CameraModel, unproject_pixel
+from vo.orb import CornerDescriptors
 from vo.patch import from_level
 
 
@@ -102,7 +103,8 @@ def _normalised(params, x, y, level):
 
 
 class Frame:
-    """One camera image with its pyramid, lazily its FAST corners, and its pose T_c_w.
+    """One camera image with its pyramid, lazily its FAST corners (and their ORB descriptors),
+    and its pose T_c_w.
 
     `feat_*` columns hold the map points matched in this frame (filled by tracking).
     """
@@ -113,6 +115,7 @@ class Frame:
         self.t = t
         self.camera = camera
         self.pyr = Pyramid(image, levels)
+        self.orb = CornerDescriptors(self.pyr.images)
         self.T_c_w = np.eye(4)
         self._detections: list[tuple[np.ndarray, np.ndarray] | None] = [None] * levels
         self._corners: dict[int, Corners] = {}

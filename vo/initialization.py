@@ -17,6 +17,12 @@ from vo.se3 import orthonormalized
 
 LK_WINDOW = (21, 21)
 LK_LEVELS = 3
+# a rotation alone explains the tracks when this fraction of them is within init_ransac_px
+ROTATION_ONLY_FRACTION = 0.9
+# two homography decompositions are a tie when their Sampson errors differ by less than
+# TIE_RATIO, or both are within TIE_FRACTION of the inlier threshold (rms)
+TIE_RATIO = 1.5
+TIE_FRACTION = 0.25
 
 
 @dataclass
@@ -64,19 +70,27 @@ def pose_from_homography(x1: np.ndarray, x2: np.ndarray, threshold: float, seed:
     valid = cv2.filterHomographyDecompByVisibleRefpoints(
         Rs, ns, x1[inl].reshape(-1, 1, 2).astype(np.float32),
         x2[inl].reshape(-1, 1, 2).astype(np.float32))
-    candidates = range(len(Rs)) if valid is None else valid.ravel()
-    best, best_err = None, np.inf
-    for i in candidates:
+    scored = []
+    for i in range(len(Rs)) if valid is None else valid.ravel():
         R, t = Rs[i], ts[i].ravel()
         if np.linalg.norm(t) < 1e-12:
             continue
         tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
-        err = float(np.sum(sampson_error(tx @ R, x1[inl], x2[inl])))
-        if err < best_err:
-            best, best_err = (R, t / np.linalg.norm(t)), err
-    if best is None:
+        scored.append((float(np.sum(sampson_error(tx @ R, x1[inl], x2[inl]))),
+                       -abs(float(ns[i].ravel()[2])), R, t / np.linalg.norm(t)))
+    if not scored:
         return None
-    return best[0], best[1], inl
+    scored.sort(key=lambda c: c[0])
+    noise = inl.sum() * (TIE_FRACTION * threshold) ** 2  # both fit to a fraction of the threshold
+    if len(scored) > 1 and scored[1][0] < TIE_RATIO * scored[0][0] + noise:
+        # a plane seen from two views: the true solution and the one with the plane normal
+        # and the motion swapped explain the points equally well (the Sampson errors are
+        # noise); that happens when the camera moves close to the plane normal (a drone
+        # climbing over the ground). Prefer the plane that faces the camera: the wrong
+        # choice tilts the whole map by the angle between motion and normal.
+        scored[:2] = sorted(scored[:2], key=lambda c: c[1])
+    _, _, R, t = scored[0]
+    return R, t, inl
 
 
 def pose_from_essential(x1: np.ndarray, x2: np.ndarray, threshold: float, seed: int):
@@ -90,6 +104,12 @@ def pose_from_essential(x1: np.ndarray, x2: np.ndarray, threshold: float, seed: 
     if n == 0:
         return None
     return R, t.ravel() / np.linalg.norm(t), pose_mask.ravel().astype(bool)
+
+
+def rotation_between(f_ref: np.ndarray, f_cur: np.ndarray) -> np.ndarray:
+    """The rotation R minimising sum |f_cur - R f_ref|^2 over unit bearings (Kabsch)."""
+    U, _, Vt = np.linalg.svd(f_ref.T @ f_cur)
+    return Vt.T @ np.diag([1.0, 1.0, np.linalg.det(Vt.T @ U.T)]) @ U.T
 
 
 def two_view_pose(x1: np.ndarray, x2: np.ndarray, threshold: float, seed: int,
@@ -141,10 +161,29 @@ class Initializer:
         if len(self.px_ref) < self.config.init_min_tracked:
             return "restart"
         shift = np.linalg.norm(self.px_cur - self.px_ref, axis=1)
-        if np.mean(shift) < self.config.init_min_disparity_px:
-            return None
+        if np.mean(shift) < self.config.init_min_disparity_px or self.rotation_only() is not None:
+            return None  # too little shift, or a shift a rotation alone explains: no parallax
         result = self._two_view()
         return "restart" if result is None else result
+
+    def rotation_only(self) -> tuple[np.ndarray, float] | None:
+        """(R_cur_ref, rms residual in px) while the tracks show no parallax: a rotation alone
+        moves ROTATION_ONLY_FRACTION of them to within init_ransac_px of where they are. The
+        camera may still have moved, but too little to see against the scene (less than about
+        init_ransac_px / focal of the scene depth); None once parallax shows."""
+        if self.ref is None or len(self.px_ref) < self.config.init_min_tracked:
+            return None
+        f_ref = self.camera.unproject(self.px_ref)
+        f_cur = self.camera.unproject(self.px_cur)
+        focal = float(np.sqrt(self.camera.fx * self.camera.fy))
+        inl = np.ones(len(f_ref), dtype=bool)
+        for _ in range(2):  # fit on all tracks, then again on those the first fit explains
+            R = rotation_between(f_ref[inl], f_cur[inl])
+            err = np.linalg.norm(f_ref @ R.T - f_cur, axis=1) * focal
+            inl = err < self.config.init_ransac_px
+            if inl.mean() < ROTATION_ONLY_FRACTION:
+                return None
+        return R, float(np.sqrt(np.mean(err[inl] ** 2)))
 
     def _two_view(self) -> InitialMap | None:
         f_ref = self.camera.unproject(self.px_ref)

@@ -14,6 +14,7 @@ import numba
 import numpy as np
 
 from vo.frame import Frame, Pyramid
+from vo.orb import DESC_BYTES, UNKNOWN, describe_levels
 
 FREE, CANDIDATE, CONVERGED, DELETED = 0, 1, 2, 3
 RELEASE_DELAY = 2
@@ -25,7 +26,7 @@ class PointStore:
     FLOAT_COLS = ("u", "v", "rho", "sigma", "a", "b", "rho_range")
     INT_COLS = ("host", "level", "n_found", "n_failed", "n_missed", "n_updates")
 
-    def __init__(self, capacity: int = 1024):
+    def __init__(self, capacity: int = 1024, levels: int = 5):
         self.capacity = 0
         self.status = np.zeros(0, dtype=np.int8)
         for name in self.FLOAT_COLS:
@@ -34,6 +35,9 @@ class PointStore:
             setattr(self, name, np.zeros(0, dtype=np.int64))
         self.f = np.zeros((0, 3))
         self.pos_w = np.zeros((0, 3))
+        # ORB descriptors at the host pixel, per pyramid level (vo.orb), computed when needed
+        self.desc = np.zeros((0, levels, DESC_BYTES), dtype=np.uint8)
+        self.desc_state = np.zeros((0, levels), dtype=np.int8)
         self._free: list[int] = []
         self._pending: list[tuple[int, np.ndarray]] = []
         self._step = 0
@@ -41,7 +45,8 @@ class PointStore:
 
     def _grow(self, capacity: int) -> None:
         old = self.capacity
-        for name in ("status", *self.FLOAT_COLS, *self.INT_COLS, "f", "pos_w"):
+        for name in ("status", *self.FLOAT_COLS, *self.INT_COLS, "f", "pos_w", "desc",
+                     "desc_state"):
             col = getattr(self, name)
             new = np.zeros((capacity, *col.shape[1:]), dtype=col.dtype)
             new[:old] = col
@@ -71,6 +76,7 @@ class PointStore:
         self.n_failed[idx] = 0
         self.n_missed[idx] = 0
         self.n_updates[idx] = 0
+        self.desc_state[idx] = UNKNOWN
         self.update_positions(idx, T_w_host)
         return idx
 
@@ -152,7 +158,7 @@ class Map:
         self.kf_pyr = np.zeros((n_slots, self.pyr_size), dtype=np.uint8)
         self.kf_T_c_w = np.tile(np.eye(4), (n_slots, 1, 1))
         self.keyframes: dict[int, Frame] = {}
-        self.points = PointStore()
+        self.points = PointStore(levels=levels)
         self.obs = Observations()
 
     def __len__(self) -> int:
@@ -197,6 +203,18 @@ class Map:
             if slot not in keep and d > best_d:
                 best, best_d = slot, d
         return best
+
+    def describe_points(self, ids: np.ndarray, need: np.ndarray) -> None:
+        """Compute the ORB descriptors of points `ids` at the levels where need (N, levels)
+        and none is cached, from each point's host keyframe."""
+        pts = self.points
+        hosts = pts.host[ids]
+        for slot in np.unique(hosts):
+            rows = ids[hosts == slot]
+            desc, state = pts.desc[rows], pts.desc_state[rows]
+            describe_levels(self.keyframes[int(slot)].pyr.images, pts.u[rows], pts.v[rows],
+                            need[hosts == slot], desc, state)
+            pts.desc[rows], pts.desc_state[rows] = desc, state
 
     def n_points(self) -> int:
         """Number of live (candidate or converged) points."""

@@ -17,6 +17,7 @@ from vo.frame import Frame
 from vo.initialization import best_per_cell
 from vo.map import CANDIDATE, CONVERGED, Map
 from vo.matcher import inverse_depth_sigma, match_epipolar, triangulate_depth
+from vo.orb import DESC_BYTES, OrbQuery, describe_levels, query
 from vo.se3 import inv_se3
 
 SHI_TOMASI_HALF = 3
@@ -49,13 +50,13 @@ def shi_tomasi(flat, off, w, h, level, x, y):
 @numba.njit(cache=True, nogil=True)
 def _measure(params, ref_flat, u, v, level, f, rho, sigma, T_cur_ref, pyr_off, pyr_w, pyr_h,
              cur_flat, cx, cy, cxn, cyn, c_row_start, max_level, margin, threshold, iterations,
-             px_angle):
+             px_angle, orb):
     """Epipolar match of one point and the inverse-depth measurement it gives:
-    (found, x, tau, u_cur, v_cur)."""
+    (found, x, tau, u_cur, v_cur); `orb` as for match_epipolar."""
     uc, vc, lv, ok = match_epipolar(params, ref_flat, pyr_off, pyr_w, pyr_h, u, v, level, f,
                                     rho, sigma, T_cur_ref, cur_flat, pyr_off, pyr_w, pyr_h,
                                     cx, cy, cxn, cyn, c_row_start, 0, max_level, margin,
-                                    threshold, iterations)
+                                    threshold, iterations, orb)
     if not ok:
         return False, 0.0, 0.0, uc, vc
     bx, by, bz = unproject_pixel(params, uc, vc)
@@ -70,8 +71,9 @@ def _measure(params, ref_flat, u, v, level, f, rho, sigma, T_cur_ref, pyr_off, p
 def update_candidates(params, idx, host, u, v, level, f, rho, sigma, a, b, rho_range, n_failed,
                       n_updates, status, pos_w, kf_pyr, kf_T_c_w, T_c_w, pyr_off, pyr_w, pyr_h,
                       cur_flat, cx, cy, cxn, cyn, c_row_start, max_level, margin, threshold,
-                      iterations, px_angle, max_failures, min_inlier, conv_L):
-    """Search every candidate idx in the current frame and fold the result into its filter.
+                      iterations, px_angle, max_failures, min_inlier, conv_L, orb, dry_run):
+    """Search every candidate idx in the current frame and fold the result into its filter
+    (with `dry_run`, only search: an ORB pass that collects the descriptors it needs).
 
     Returns (found mask, level-0 positions (N, 2), delete mask)."""
     n = idx.shape[0]
@@ -86,7 +88,9 @@ def update_candidates(params, idx, host, u, v, level, f, rho, sigma, a, b, rho_r
         ok, x, tau, uc, vc = _measure(params, kf_pyr[host[p]], u[p], v[p], level[p], f[p],
                                       rho[p], sigma[p], T_cur_ref, pyr_off, pyr_w, pyr_h,
                                       cur_flat, cx, cy, cxn, cyn, c_row_start, max_level, margin,
-                                      threshold, iterations, px_angle)
+                                      threshold, iterations, px_angle, query(orb, k))
+        if dry_run:
+            continue
         if not ok:
             n_failed[p] += 1
             delete[k] = n_failed[p] > max_failures
@@ -117,18 +121,18 @@ def update_candidates(params, idx, host, u, v, level, f, rho, sigma, a, b, rho_r
 @numba.njit(cache=True, nogil=True)
 def search_new(params, ref_flat, u, v, level, f, rho, sigma, rho0, sigma0, a0, b0, rho_range,
                T_cur_ref, pyr_off, pyr_w, pyr_h, cur_flat, cx, cy, cxn, cyn, c_row_start,
-               max_level, margin, threshold, iterations, px_angle):
+               max_level, margin, threshold, iterations, px_angle, orb):
     """Search the new candidates of the reference keyframe still without a depth (rho NaN) in
     another keyframe; a match is the first depth-filter update of the prior (rho0 +- sigma0,
     Beta(a0, b0)) and sets rho, sigma in place. One kernel for all of them: no GIL
-    round trip per point."""
+    round trip per point. `orb`: tables of vo.orb for feature k (as for match_epipolar)."""
     for k in range(u.shape[0]):
         if not np.isnan(rho[k]):
             continue
         found, x, tau, _, _ = _measure(
             params, ref_flat, u[k], v[k], level[k], f[k], rho0, sigma0, T_cur_ref, pyr_off,
             pyr_w, pyr_h, cur_flat, cx, cy, cxn, cyn, c_row_start, max_level, margin, threshold,
-            iterations, px_angle)
+            iterations, px_angle, query(orb, k))
         if not found:
             continue
         m, s2, _, _ = update_seed(rho0, sigma0 ** 2, a0, b0, x, tau * tau, rho_range)
@@ -173,12 +177,21 @@ class Mapper:
         found_uv = np.zeros((0, 2))
         if len(cand):
             args = self._search_args(frame)
-            found, uv, delete = update_candidates(
-                self.camera.params, cand, pts.host, pts.u, pts.v, pts.level, pts.f, pts.rho,
-                pts.sigma, pts.a, pts.b, pts.rho_range, pts.n_failed, pts.n_updates,
-                pts.status, pts.pos_w, self.map.kf_pyr, self.map.kf_T_c_w, frame.T_c_w,
-                *args[:9], *args[9:], self.config.seed_max_failures,
-                self.config.min_inlier_probability, self.config.convergence_L)
+            orb = self._orb_query(frame, cand, pts.desc, pts.desc_state, self._describe_points)
+
+            def search(dry_run: bool):
+                return update_candidates(
+                    self.camera.params, cand, pts.host, pts.u, pts.v, pts.level, pts.f,
+                    pts.rho, pts.sigma, pts.a, pts.b, pts.rho_range, pts.n_failed,
+                    pts.n_updates, pts.status, pts.pos_w, self.map.kf_pyr, self.map.kf_T_c_w,
+                    frame.T_c_w, *args, self.config.seed_max_failures,
+                    self.config.min_inlier_probability, self.config.convergence_L,
+                    orb.tables, dry_run)
+
+            if orb.max_distance >= 0:
+                search(True)
+                orb.fill()
+            found, uv, delete = search(False)
             with self.map.lock:
                 pts.delete(cand[delete])
             found_uv = uv[found & ~delete]
@@ -205,17 +218,32 @@ class Mapper:
         T_w_new = frame.T_w_c
         rho = np.full(len(u), np.nan)
         sigma = np.full(len(u), np.nan)
+        levels = cfg.pyramid_levels
+        desc = np.zeros((len(u), levels, DESC_BYTES), dtype=np.uint8)
+        desc_state = np.zeros((len(u), levels), dtype=np.int8)
+
+        def describe_new(rows: np.ndarray, need: np.ndarray) -> None:
+            d, st = desc[rows], desc_state[rows]
+            describe_levels(frame.pyr.images, u[rows], v[rows], need, d, st)
+            desc[rows], desc_state[rows] = d, st
+
         for other in self._search_keyframes(frame, slot):
             if not np.isnan(rho).any():
                 break
-            T_cur_ref = self.map.keyframes[other].T_c_w @ T_w_new
-            search_new(self.camera.params, frame.pyr.flat, u, v, level, f, rho, sigma, rho0,
-                       sigma0, cfg.seed_a, cfg.seed_b, 1.0 / d_min, T_cur_ref,
-                       *self._search_args(self.map.keyframes[other]))
+            kf = self.map.keyframes[other]
+            T_cur_ref = kf.T_c_w @ T_w_new
+            orb = self._orb_query(kf, np.arange(len(u)), desc, desc_state, describe_new)
+            args = (self.camera.params, frame.pyr.flat, u, v, level, f, rho, sigma, rho0,
+                    sigma0, cfg.seed_a, cfg.seed_b, 1.0 / d_min, T_cur_ref,
+                    *self._search_args(kf))
+            search_new(*args, orb.tables)
+            if orb.fill():  # an ORB pass matches what it can and collects what it needs
+                search_new(*args, orb.tables)
         new = np.flatnonzero(np.isfinite(rho))
         with self.map.lock:
-            pts.add(slot, u[new], v[new], level[new], f[new], rho[new], sigma[new],
-                    np.full(len(new), 1.0 / d_min), cfg.seed_a, cfg.seed_b, T_w_new)
+            ids = pts.add(slot, u[new], v[new], level[new], f[new], rho[new], sigma[new],
+                          np.full(len(new), 1.0 / d_min), cfg.seed_a, cfg.seed_b, T_w_new)
+            pts.desc[ids], pts.desc_state[ids] = desc[new], desc_state[new]
             self._cap_keyframes(frame)
             if self.n_keyframes_added % 10 == 0:
                 self.map.prune_observations()
@@ -223,6 +251,20 @@ class Mapper:
             local_ba(self.map, slot, self.camera, cfg)
         else:
             self.skipped_ba += int(cfg.local_ba)
+
+    def _orb_query(self, frame: Frame, pid: np.ndarray, desc: np.ndarray,
+                   desc_state: np.ndarray, fill_refs) -> OrbQuery:
+        """ORB arguments for searching references `pid` (rows of desc) in frame's corners
+        (patch matching: a dummy)."""
+        cfg = self.config
+        if cfg.matcher != "orb":
+            return OrbQuery.patches(len(pid), cfg.pyramid_levels)
+        return OrbQuery(cfg.orb_max_distance, pid, desc, desc_state, cfg.pyramid_levels,
+                        frame.orb, frame.corners(cfg.fast_threshold), fill_refs)
+
+    def _describe_points(self, ids: np.ndarray, need: np.ndarray) -> None:
+        with self.map.lock:
+            self.map.describe_points(ids, need)
 
     def _scene_depths(self, frame: Frame) -> np.ndarray:
         pts = self.map.points

@@ -11,6 +11,7 @@ import numba
 import numpy as np
 
 from calib.camera import project_point, unproject_pixel
+from vo.orb import NONE, UNKNOWN, VALID, hamming
 from vo.patch import (
     BORDER_PATCH,
     HALF,
@@ -137,10 +138,15 @@ def _segment_distance(px, py, ax, ay, bx, by):
 @numba.njit(cache=True, nogil=True)
 def match_epipolar(params, ref_flat, ref_off, ref_w, ref_h, ref_u, ref_v, ref_level, f_ref,
                    rho, sigma, T_cur_ref, cur_flat, cur_off, cur_w, cur_h, cx, cy, cxn, cyn,
-                   c_row_start, min_level, max_level, margin_px, threshold, iterations):
+                   c_row_start, min_level, max_level, margin_px, threshold, iterations, orb):
     """Search a point with inverse depth rho +- 2 sigma along its epipolar segment in the
     current frame, among its FAST corners (cx, cy per level, normalised cxn, cyn) of levels
-    min_level..max_level. Returns (u, v, level, ok) at level 0."""
+    min_level..max_level. Returns (u, v, level, ok) at level 0.
+
+    Candidates are scored by ZMSSD of the affine-warped patch (below `threshold` per pixel),
+    or, when orb[0] (the maximum distance) >= 0, by the Hamming distance of ORB descriptors
+    (vo.orb.query: the point's per-level descriptors, the frame's corner descriptors; missing
+    ones are marked as needed and the search fails as pending)."""
     if not (rho > 0.0 and sigma > 0.0 and np.isfinite(rho + sigma)):
         return 0.0, 0.0, 0, False
     rho_far = max(rho - 2.0 * sigma, MIN_RHO)
@@ -167,18 +173,30 @@ def match_epipolar(params, ref_flat, ref_off, ref_w, ref_h, ref_u, ref_v, ref_le
     A = affine_cur_ref(params, T_cur_ref, f_ref, 1.0 / rho, ref_u, ref_v, ref_level)
     if np.isnan(A[0, 0]) or np.isnan(A[1, 1]):
         return 0.0, 0.0, 0, False
-    if abs(A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]) < 1e-6:
+    det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+    if abs(det) < 1e-6:
         return 0.0, 0.0, 0, False
     A_ref_cur = np.linalg.inv(A)
+    use_orb = orb[0] >= 0
+    # ORB: corners of level l are compared with the point's descriptor at the reference
+    # level that shows the same scale
+    level_shift = int(np.round(0.5 * np.log2(abs(det))))
+    pending = orb[7][0]
     patch = np.empty((BORDER_PATCH, BORDER_PATCH))
-    best_patch = np.empty((BORDER_PATCH, BORDER_PATCH))
-    best = threshold * PATCH_AREA
+    best = orb[0] + 1.0 if use_orb else threshold * PATCH_AREA
     best_x = best_y = 0.0
     best_level = -1
     focal = params[1]
     for level in range(min_level, max_level + 1):
-        if not warp_patch(ref_flat, ref_off[ref_level], ref_w[ref_level], ref_h[ref_level],
-                          A_ref_cur, ref_u, ref_v, ref_level, level, patch):
+        rl = level - level_shift
+        if use_orb:
+            if rl < 0 or rl >= orb[1].shape[0] or orb[2][rl] == NONE:
+                continue
+            if orb[2][rl] == UNKNOWN:
+                orb[3][rl] = True
+                orb[7][0] += 1
+        elif not warp_patch(ref_flat, ref_off[ref_level], ref_w[ref_level], ref_h[ref_level],
+                            A_ref_cur, ref_u, ref_v, ref_level, level, patch):
             continue
         s = 2.0 ** level
         m = margin_px * s
@@ -199,19 +217,30 @@ def match_epipolar(params, ref_flat, ref_off, ref_w, ref_h, ref_u, ref_v, ref_le
                     continue
                 if _segment_distance(cxn[i], cyn[i], ax, ay, bx, by) > tol:
                     continue
-                score = zmssd(patch, cur_flat, cur_off[level], w, int(x), int(y))
+                if not use_orb:
+                    score = zmssd(patch, cur_flat, cur_off[level], w, int(x), int(y))
+                elif orb[5][i] == UNKNOWN:
+                    orb[6][i] = True
+                    orb[7][0] += 1
+                    continue
+                elif orb[5][i] == VALID and orb[2][rl] == VALID:
+                    score = float(hamming(orb[1][rl], orb[4][i]))
+                else:
+                    continue
                 if score < best:
                     best = score
                     best_x, best_y, best_level = x, y, level
-                    best_patch[:, :] = patch
-    if best_level < 0:
+    if best_level < 0 or orb[7][0] > pending:
         return 0.0, 0.0, 0, False
     lv = best_level
-    ul, vl, ok = align2d(cur_flat, cur_off[lv], cur_w[lv], cur_h[lv], best_patch, best_x, best_y,
+    u0, v0 = from_level(best_x, lv), from_level(best_y, lv)
+    if not warp_patch(ref_flat, ref_off[ref_level], ref_w[ref_level], ref_h[ref_level],
+                      A_ref_cur, ref_u, ref_v, ref_level, lv, patch):
+        return u0, v0, lv, use_orb  # a descriptor match whose patch cannot be refined
+    ul, vl, ok = align2d(cur_flat, cur_off[lv], cur_w[lv], cur_h[lv], patch, best_x, best_y,
                          iterations)
-    if not ok or (ul - best_x) ** 2 + (vl - best_y) ** 2 > 4.0:
-        ul, vl = best_x, best_y
-    u0, v0 = from_level(ul, lv), from_level(vl, lv)
+    if ok and (ul - best_x) ** 2 + (vl - best_y) ** 2 <= 4.0:
+        u0, v0 = from_level(ul, lv), from_level(vl, lv)
     if lv > 0 and warp_patch(ref_flat, ref_off[ref_level], ref_w[ref_level], ref_h[ref_level],
                              A_ref_cur, ref_u, ref_v, ref_level, 0, patch):
         # a last sub-pixel step at full resolution

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from vo.se3 import adjoint, exp_se3, inv_se3, plane_jacobian, transform
+from vo.se3 import adjoint, exp_se3, inv_se3, plane_jacobian, skew, transform
 
 TUKEY_C = 4.6851
 MAD_TO_SIGMA = 1.4826
@@ -117,14 +117,20 @@ def optimize_pose(pos_w, obs, level, whiten, T_c_w, iterations, sigma_floor):
 
 
 def pose_covariance(H: np.ndarray, sigma: float, T_w_c: np.ndarray) -> np.ndarray | None:
-    """Covariance of T_w_c in the world frame (translation, rotation) from the camera-frame normal
-    matrix H of a left perturbation of T_c_w and residual std sigma; None if H is singular."""
+    """Covariance of the camera's world position and world rotation (R -> exp(phi) R) from the
+    camera-frame normal matrix H of a left perturbation of T_c_w and residual std sigma; None if
+    H is singular.
+
+    A left perturbation exp((rho, phi)) of T_w_c moves the position by rho + phi x p: far from
+    the world origin (a drone at 6 m over a map started at 1.5 m) the rotation's share of the
+    position error is what matters, so it is folded in here."""
     try:
         cov_c = np.linalg.inv(H) * sigma * sigma
     except np.linalg.LinAlgError:
         return None
     if not np.all(np.isfinite(cov_c)):
         return None
-    Ad = adjoint(T_w_c)
-    cov = Ad @ cov_c @ Ad.T
+    J = adjoint(T_w_c)  # camera-frame twist -> left perturbation of T_w_c
+    J[:3] -= skew(np.ascontiguousarray(T_w_c[:3, 3])) @ J[3:]  # -> (position, rotation)
+    cov = J @ cov_c @ J.T
     return 0.5 * (cov + cov.T)

@@ -8,6 +8,7 @@ import numpy as np
 
 from calib.camera import project_point, unproject_pixel
 from vo.matcher import match_direct, match_epipolar
+from vo.orb import OrbQuery, query
 from vo.se3 import inv_se3, transform
 
 
@@ -74,58 +75,70 @@ def closest_views(params, idx, pos_w, host, hu, hv, hlevel, host_only, start, or
 def match_in_cells(params, order, px, cell, T_c_w, host, huv, hlevel, f, depth, rho, sigma,
                    search, kf_pyr, kf_T_c_w, pyr_off, pyr_w, pyr_h, cur_flat, corners,
                    max_level, search_levels, max_matches, iterations, margin, threshold,
-                   fallback):
+                   fallback, done, tried, lookahead, orb):
     """Try points in `order` (grouped by cell, best first); the first success closes its cell.
 
     Points flagged `search` (uncertain depth) are searched along their epipolar segment
     (rho +- 2 sigma) among the FAST `corners` (x, y, xn, yn, row_start) of the levels
-    search_levels (min, max); the others are aligned directly at their predicted position.
+    search_levels (min, max); the others are aligned directly at their predicted position
+    (with ORB, orb[0] >= 0, searched along a short segment around it: descriptors need
+    corners).
 
-    Returns (matched positions into order's arrays, u, v, level, attempted mask).
+    `done` (per cell) and `tried` (per point) carry over between passes: a point whose
+    descriptors are pending (vo.orb) is retried in the next pass, and up to `lookahead` later
+    points of its cell are looked at meanwhile (their descriptors collected, results held back).
+
+    Returns (matched positions into order's arrays, u, v, level) of this pass.
     """
     n = order.shape[0]
-    done = np.zeros(cell.max() + 1 if n > 0 else 1, dtype=np.bool_)
+    waiting = np.zeros(done.shape[0], dtype=np.int64)
     out_k = np.empty(n, dtype=np.int64)
     out_uv = np.empty((n, 2))
     out_level = np.empty(n, dtype=np.int64)
-    attempted = np.zeros(n, dtype=np.bool_)
+    use_orb = orb[0] >= 0
     m = 0
     for k in order:
         if m >= max_matches:
             break
-        if done[cell[k]]:
+        c = cell[k]
+        if done[c] or tried[k] or waiting[c] >= lookahead:
             continue
-        attempted[k] = True
         s = host[k]
         T_cur_ref = T_c_w @ inv_se3(kf_T_c_w[s])
-        if search[k]:
+        pending = orb[8][0]
+        u = v = 0.0
+        level = 0
+        r, r_sigma, r_margin = rho[k], sigma[k], margin
+        ok = False
+        if not search[k]:
+            if not use_orb:
+                u, v, level, ok = match_direct(
+                    params, kf_pyr[s], pyr_off, pyr_w, pyr_h, huv[k, 0], huv[k, 1], hlevel[k],
+                    f[k], depth[k], T_cur_ref, cur_flat, pyr_off, pyr_w, pyr_h, px[k, 0],
+                    px[k, 1], max_level, iterations)
+            # ORB, or prediction too far off for direct alignment: search FAST corners along
+            # the point's (short) epipolar segment as the thesis matcher does
+            r = 1.0 / depth[k]
+            r_sigma = r * max(sigma[k] / rho[k], 0.05)
+            r_margin = 2.0 * margin
+        if not ok and (search[k] or use_orb or (fallback and corners[0].shape[0] > 0)):
             u, v, level, ok = match_epipolar(
                 params, kf_pyr[s], pyr_off, pyr_w, pyr_h, huv[k, 0], huv[k, 1], hlevel[k], f[k],
-                rho[k], sigma[k], T_cur_ref, cur_flat, pyr_off, pyr_w, pyr_h, corners[0],
-                corners[1], corners[2], corners[3], corners[4], search_levels[0],
-                search_levels[1], margin, threshold, iterations)
-        else:
-            u, v, level, ok = match_direct(
-                params, kf_pyr[s], pyr_off, pyr_w, pyr_h, huv[k, 0], huv[k, 1], hlevel[k], f[k],
-                depth[k], T_cur_ref, cur_flat, pyr_off, pyr_w, pyr_h, px[k, 0], px[k, 1],
-                max_level, iterations)
-            if not ok and fallback and corners[0].shape[0] > 0:
-                # prediction too far off for direct alignment: search FAST corners along
-                # the point's (short) epipolar segment as the thesis matcher does
-                r = 1.0 / depth[k]
-                u, v, level, ok = match_epipolar(
-                    params, kf_pyr[s], pyr_off, pyr_w, pyr_h, huv[k, 0], huv[k, 1], hlevel[k],
-                    f[k], r, r * max(sigma[k] / rho[k], 0.05), T_cur_ref, cur_flat, pyr_off,
-                    pyr_w, pyr_h, corners[0], corners[1], corners[2], corners[3], corners[4],
-                    search_levels[0], search_levels[1], 2.0 * margin, threshold, iterations)
+                r, r_sigma, T_cur_ref, cur_flat, pyr_off, pyr_w, pyr_h, corners[0], corners[1],
+                corners[2], corners[3], corners[4], search_levels[0], search_levels[1],
+                r_margin, threshold, iterations, query(orb, k))
+        if orb[8][0] > pending or waiting[c] > 0:
+            waiting[c] += 1
+            continue
+        tried[k] = True
         if ok:
-            done[cell[k]] = True
+            done[c] = True
             out_k[m] = k
             out_uv[m, 0] = u
             out_uv[m, 1] = v
             out_level[m] = level
             m += 1
-    return out_k[:m], out_uv[:m], out_level[:m], attempted
+    return out_k[:m], out_uv[:m], out_level[:m]
 
 
 class Reprojector:
@@ -139,9 +152,9 @@ class Reprojector:
         f = camera.unproject(corners)
         self.max_r2 = 1.2 * float(np.max((f[:, 0] ** 2 + f[:, 1] ** 2) / f[:, 2] ** 2))
         self.cols = (width + cell - 1) // cell
-        n_cells = self.cols * ((height + cell - 1) // cell)
+        self.n_cells = self.cols * ((height + cell - 1) // cell)
         # a fixed random cell order, so the match cap does not favour the image top
-        self.cell_rank = np.random.default_rng(seed).permutation(n_cells)
+        self.cell_rank = np.random.default_rng(seed).permutation(self.n_cells)
 
     def cell_of(self, px: np.ndarray) -> np.ndarray:
         """Grid cell index of level-0 pixels."""
@@ -149,8 +162,11 @@ class Reprojector:
             px[:, 0] // self.cell).astype(np.int64)
 
     def run(self, params, frame, pts, obs, idx: np.ndarray, search: np.ndarray, kf_pyr,
-            kf_T_c_w, config):
+            kf_T_c_w, config, fill_point_descriptors=None):
         """Match points `idx` of store `pts` in `frame` (pose T_c_w set to its prior).
+
+        With config.matcher "orb", `fill_point_descriptors(point ids, need (N, levels))`
+        describes map points at their host keyframe.
 
         Returns (point ids, uv (M, 2), levels, n_visible, n_attempts, attempted point ids).
         """
@@ -160,24 +176,49 @@ class Reprojector:
         if len(idx) == 0:
             empty = np.zeros(0, dtype=np.int64)
             return empty, np.zeros((0, 2)), empty, 0, 0, empty
+        use_orb = config.matcher == "orb"
         cell = self.cell_of(px)
         order = np.lexsort((-pts.n_found[idx], self.cell_rank[cell]))
         start, obs_order = obs.by_point(pts.capacity)
+        # ORB descriptors are kept for the host's view: match against the host then
         slot, ref_uv, ref_level, f, depth = closest_views(
-            params, idx, pts.pos_w, pts.host[idx], pts.u[idx], pts.v[idx], pts.level[idx], search,
-            start, obs_order, obs.kf, obs.uv, obs.level, kf_T_c_w, frame.position)
+            params, idx, pts.pos_w, pts.host[idx], pts.u[idx], pts.v[idx], pts.level[idx],
+            search | use_orb, start, obs_order, obs.kf, obs.uv, obs.level, kf_T_c_w,
+            frame.position)
         pyr = frame.pyr
-        if search.any() or config.track_search_fallback:
-            c = frame.corners(config.fast_threshold, config.track_search_min_level)
+        levels = config.pyramid_levels
+        c = None
+        min_level = config.track_corner_level
+        if search.any() or config.track_search_fallback or use_orb:
+            c = frame.corners(config.fast_threshold, min_level)
             corners = (c.x, c.y, c.xn, c.yn, c.row_start)
         else:
             corners = (np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0),
                        np.zeros((1, 1), dtype=np.int64))
-        k, uv, level, attempted = match_in_cells(
-            params, order, px, cell, frame.T_c_w, slot, ref_uv, ref_level, f, depth,
-            pts.rho[idx], pts.sigma[idx], search, kf_pyr, kf_T_c_w, pyr.offsets, pyr.widths,
-            pyr.heights, pyr.flat, corners, config.pyramid_levels - 1,
-            (config.track_search_min_level, config.match_max_level), config.max_matches,
-            config.align2d_iterations, config.epipolar_margin_px, config.zmssd_threshold,
-            config.track_search_fallback)
-        return idx[k], uv, level, len(idx), int(attempted.sum()), idx[attempted]
+        if use_orb:
+            orb = OrbQuery(config.orb_max_distance, idx, pts.desc, pts.desc_state, levels,
+                           frame.orb, c, fill_point_descriptors)
+        else:
+            orb = OrbQuery.patches(len(idx), levels)
+        done = np.zeros(self.n_cells, dtype=np.bool_)
+        tried = np.zeros(len(idx), dtype=np.bool_)
+        found: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        lookahead, n_found = 1, 0
+        while True:
+            k, uv, level = match_in_cells(
+                params, order, px, cell, frame.T_c_w, slot, ref_uv, ref_level, f, depth,
+                pts.rho[idx], pts.sigma[idx], search, kf_pyr, kf_T_c_w, pyr.offsets, pyr.widths,
+                pyr.heights, pyr.flat, corners, levels - 1,
+                (min_level, config.match_max_level),
+                config.max_matches - n_found, config.align2d_iterations,
+                config.epipolar_margin_px, config.zmssd_threshold,
+                config.track_search_fallback, done, tried, lookahead, orb.tables)
+            found.append((k, uv, level))
+            n_found += len(k)
+            if not orb.fill():
+                break
+            lookahead *= 2
+        k = np.concatenate([a[0] for a in found])
+        uv = np.concatenate([a[1] for a in found])
+        level = np.concatenate([a[2] for a in found])
+        return idx[k], uv, level, len(idx), int(tried.sum()), idx[tried]

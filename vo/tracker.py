@@ -61,6 +61,7 @@ class Tracker:
         if self.threaded:
             self.mapper.ba_allowed = lambda: self._queue.empty()
         self.initializer = Initializer(self.camera, cfg)
+        self.posed_ref: Frame | None = None  # the initialiser reference poses were given from
         self.last: Frame | None = None
         self.motion = np.eye(4)
         self.lost = LostCounter(cfg)
@@ -68,7 +69,7 @@ class Tracker:
         self.lost_init: Initializer | None = None  # a new map, built while relocalising
         self.view_since: int | None = None  # lost, and the view usable since this frame id
         self.frames_since_kf = 0
-        self.kf_visible = 0
+        self.kf_visible: int | None = None  # points seen at the last keyframe
         if self.threaded:
             self._queue = queue.Queue(maxsize=cfg.mapping_queue_size)
             self._thread = threading.Thread(target=self._mapping_loop, name="sdvl-mapping",
@@ -139,7 +140,10 @@ class Tracker:
         timings["track"] = _ms(t0)
         if result.quality == "lost":
             self._on_lost()  # outside the map lock: a reset joins the mapping thread
-        if result.has_pose and not result.new_segment:
+        # mapping follows frames tracked against the map (a new map's frames are in it
+        # already; poses before the map have none)
+        if result.has_pose and self.last is frame and not (result.new_segment
+                                                            or frame.is_keyframe):
             t1 = time.perf_counter()
             self._map_step(frame, keyframe)
             timings["mapping"] = _ms(t1)
@@ -150,8 +154,32 @@ class Tracker:
     def _initialize(self, frame: Frame, timings: dict[str, float]) -> tuple[FrameResult, bool]:
         outcome = _init_step(self.initializer, frame, timings)
         if not isinstance(outcome, InitialMap):
-            return FrameResult(frame.t, None, "initializing"), False
-        return self._start_map(self.initializer.ref, frame, outcome), True
+            return self._pose_before_map(frame, outcome == "restart"), False
+        result = self._start_map(self.initializer.ref, frame, outcome)
+        # the map's world is the reference camera, in which the poses so far were given
+        result.new_segment = self.posed_ref is not self.initializer.ref
+        return result, True
+
+    def _pose_before_map(self, frame: Frame, is_reference: bool) -> FrameResult:
+        """Before the map exists, the pose relative to the initialiser's reference (the future
+        map's world frame) while no parallax shows: the reference itself, and the rotation
+        that explains the tracks with the camera still at the reference's position (a
+        translation too small to see; its covariance says how small). Quality insufficient:
+        no keyframe, no map."""
+        init = self.initializer
+        found = (np.eye(3), 0.0) if is_reference else init.rotation_only()
+        if init.ref is None or found is None:
+            return FrameResult(frame.t, None, "initializing")
+        R_cur_ref, rms = found
+        T_w_c = np.eye(4)
+        T_w_c[:3, :3] = R_cur_ref.T
+        new_segment = self.posed_ref is not init.ref
+        self.posed_ref = init.ref
+        n = len(init.px_ref)
+        cov = rotation_only_covariance(self.camera, init.px_ref, R_cur_ref, rms,
+                                       self.config.init_ransac_px)
+        return FrameResult(frame.t, T_w_c, "insufficient", cov, n, n, n,
+                           new_segment=new_segment)
 
     def _initialize_while_lost(self, frame: Frame, timings: dict[str, float],
                                lost: FrameResult) -> tuple[FrameResult, bool]:
@@ -209,7 +237,9 @@ class Tracker:
         self.last = cur
         self.motion = np.eye(4)
         self.frames_since_kf = 0
-        self.kf_visible = n
+        # the first tracked frame sets it: the initial map's count (all LK tracks) is not
+        # comparable with a tracked frame's (at most one match per grid cell)
+        self.kf_visible = None
         cur.n_visible = n
 
     def _track(self, frame: Frame, timings: dict[str, float]) -> tuple[FrameResult, bool]:
@@ -234,6 +264,8 @@ class Tracker:
         self.last = frame
         self.frames_since_kf += 1
         n_seen = int(m.inlier.sum()) if cfg.kf_count_inliers else m.n_visible
+        if self.kf_visible is None:
+            self.kf_visible = n_seen
         keyframe = quality == "good" and self._need_keyframe(n_seen)
         if keyframe:
             self.frames_since_kf = 0
@@ -245,9 +277,9 @@ class Tracker:
     def _match(self, frame: Frame, timings: dict[str, float]) -> _Matches:
         """Map points matched in frame (pose prior set) and the pose refined from them."""
         cfg = self.config
-        if cfg.track_candidates or cfg.track_search_fallback:
+        if cfg.track_candidates or cfg.track_search_fallback or cfg.matcher == "orb":
             t0 = time.perf_counter()
-            frame.corners(cfg.fast_threshold, cfg.track_search_min_level)  # epipolar searches
+            frame.corners(cfg.fast_threshold, cfg.track_corner_level)  # searches among corners
             timings["corners"] = _ms(t0)
         t0 = time.perf_counter()
         ids, uv, levels, n_visible, n_attempts, attempted = self._reproject(frame)
@@ -426,7 +458,8 @@ class Tracker:
         idx = np.flatnonzero(usable)
         search = pts.status[idx] == CANDIDATE
         return self.reprojector.run(self.camera.params, frame, pts, self.map.obs, idx, search,
-                                    self.map.kf_pyr, self.map.kf_T_c_w, cfg)
+                                    self.map.kf_pyr, self.map.kf_T_c_w, cfg,
+                                    self.map.describe_points)
 
     def _optimize(self, frame: Frame, ids: np.ndarray, uv: np.ndarray, levels: np.ndarray):
         """Pose refinement from matches; returns (T_c_w, H, sigma, per-match error)."""
@@ -439,6 +472,23 @@ class Tracker:
         return optimize_pose(np.ascontiguousarray(pts.pos_w[ids]), obs,
                              np.ascontiguousarray(levels, dtype=np.int64), whiten, frame.T_c_w,
                              self.config.pose_iterations, 0.5 / focal)
+
+
+def rotation_only_covariance(camera: CameraModel, px_ref: np.ndarray, R_cur_ref: np.ndarray,
+                             rms_px: float, threshold_px: float) -> np.ndarray:
+    """Covariance of a pose from a rotation-only fit (translation, rotation; world = reference
+    camera, scene depth ~1 as the map will be scaled): a sideways move of d shifts the tracks by
+    d * focal px, a move along the axis by d * focal * r (r = normalised radius), so an unseen
+    move is below threshold_px over that; the rotation is known to rms_px / focal / sqrt(n)."""
+    focal = float(np.sqrt(camera.fx * camera.fy))
+    f = camera.unproject(px_ref)
+    radius = float(np.median(np.linalg.norm(f[:, :2] / f[:, 2:], axis=1)))
+    std_t = threshold_px / focal
+    var_c = np.array([std_t, std_t, std_t / max(radius, 0.1)]) ** 2
+    cov = np.zeros((6, 6))
+    cov[:3, :3] = R_cur_ref.T @ np.diag(var_c) @ R_cur_ref
+    cov[3:, 3:] = np.eye(3) * (max(rms_px, 0.1) / focal) ** 2 / len(px_ref)
+    return cov
 
 
 def shifted_priors(kf: Frame, frame: Frame, camera: CameraModel, level: int,

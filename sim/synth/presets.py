@@ -88,6 +88,12 @@ def survey_down(seed: int, textures: str | None) -> FlightSpec:
     return FlightSpec(_survey_path(12.0, 3, 30.0, 8.0, 3.0), outdoor_scene(seed, textures))
 
 
+def survey_long(seed: int, textures: str | None) -> FlightSpec:
+    """The survey for hours of tracking: 10 legs of 100 m at 12 m, 8 m apart, 3 m/s (about
+    6 min, 10,800 frames): the map must stay bounded while the camera keeps seeing new ground."""
+    return FlightSpec(_survey_path(12.0, 10, 100.0, 8.0, 3.0), outdoor_scene(seed, textures))
+
+
 def room_handheld(seed: int, textures: str | None) -> FlightSpec:
     """A camera carried at 1.5 m through a room: sideways walks facing the walls, a pan on the
     spot (pure rotation), head bob; about 26 s."""
@@ -152,6 +158,7 @@ def fast_down(seed: int, textures: str | None) -> FlightSpec:
 PRESETS: dict[str, Callable[[int, str | None], FlightSpec]] = {
     "hover-down": hover_down,
     "survey-down": survey_down,
+    "survey-long": survey_long,
     "room-handheld": room_handheld,
     "walkers": walkers,
     "blackout": blackout,
