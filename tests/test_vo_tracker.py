@@ -86,6 +86,25 @@ def test_sequential_runs_are_reproducible(synthetic):
     assert np.array_equal(poses[0], poses[1])
 
 
+def test_keyframe_reference_counts_the_keyframes_new_candidates():
+    """A keyframe made where few points were seen: its new candidates, in use after
+    candidate_min_updates depth updates, raise the reference, so losing 30% of them brings the
+    next keyframe (with the bare count of 40 it came far too late on kitti00's turn). This is
+    the projected-points count of the kitti_10hz preset."""
+    tracker = Tracker(small_camera(), TrackerConfig(candidate_min_updates=1, kf_min_frames=30,
+                                                    kf_count_inliers=False))
+    tracker.kf_visible, tracker.frames_since_kf = 40, 0
+    assert not tracker._keyframe_due(45, True)
+    assert not tracker._keyframe_due(200, True)  # the candidates are tracked: reference 200
+    assert tracker.kf_visible == 200
+    assert not tracker._keyframe_due(210, True)  # later frames no longer raise it
+    assert tracker.kf_visible == 200
+    assert not tracker._keyframe_due(150, True)  # 75%: too early for the 90% rule
+    assert not tracker._keyframe_due(130, False)  # under 70%, but only good frames qualify
+    assert tracker._keyframe_due(130, True)
+    assert (tracker.kf_visible, tracker.frames_since_kf) == (130, 0)
+
+
 def test_bad_input_is_an_input_error():
     cam = small_camera()
     tracker = Tracker(cam)
