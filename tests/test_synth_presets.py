@@ -63,8 +63,8 @@ def test_blackout_covers_the_lens_and_kidnap_skips_frames():
 def test_walkers_move_through_the_view():
     seq = synthetic_sequence("walkers", size=SIZE, textures="procedural")
     movers = seq.image_loader.spec.scene.movers
-    assert len(movers) == 8
-    t = np.array([m.t_start for m in movers]) + 4.0  # 5.6 m into its walk: under the drone
+    assert len(movers) == 24
+    t = np.array([m.t_start for m in movers]) + 4.0  # about 4 m into its walk: under the drone
     i = int(np.searchsorted(seq.timestamps, t[0]))
     still = synthetic_sequence("walkers", size=SIZE, textures="procedural")
     still.image_loader.spec.scene.movers = []

@@ -64,6 +64,10 @@ class TrackerConfig:
     reloc_max_residual_ratio: float = 0.5
     # pyramid level at which the image shift to a keyframe is found (phase correlation)
     reloc_shift_level: int = 2
+    # a relocalised pose must be this well determined (largest rotation std of its covariance,
+    # degrees): matches crowded into the sliver of view shared with a keyframe leave tilt and
+    # sideways position confused (seen: 14 deg and 2.7 m off at 1.6 deg std; tracking: < 0.2)
+    reloc_max_rotation_std_deg: float = 0.5
     # keyframes tried per lost frame (the newest ones; 0 = all)
     reloc_max_keyframes: int = 0
     # while relocalising, a new map is initialised on the side (if reinit_when_lost); it is
@@ -90,6 +94,17 @@ class TrackerConfig:
     local_ba: bool = False
     ba_first_iterations: int = 5
     ba_second_iterations: int = 10
+    # points in the BA need this many keyframe observations besides their host's (fewer
+    # views re-triangulate them worse than the depth filter, which saw every frame)
+    ba_min_views: int = 3
+    # the BA runs only when the local problem's rms reprojection error is at least this
+    # (pixels): below, the keyframes already agree to within the noise
+    ba_min_rms_px: float = 0.5
+    # each point's depth filter estimate is a prior with the filter's sigma times this
+    ba_depth_prior_inflation: float = 1.0
+    # scipy least_squares method: 'trf' or 'dogbox' (sparse Jacobian; same final cost on
+    # survey/KITTI problems, dogbox ~25% faster), 'lm' (MINPACK, dense: 5-7x slower at 180 points)
+    ba_method: str = "trf"
 
     # map initialisation (6.6.1)
     init_min_features: int = 50
@@ -131,6 +146,8 @@ class TrackerConfig:
         if not 0 <= self.track_search_min_level <= self.match_max_level < self.pyramid_levels:
             raise InputError("need 0 <= track_search_min_level <= match_max_level < "
                              "pyramid_levels")
+        if self.ba_method not in ("trf", "dogbox", "lm"):
+            raise InputError("ba_method must be 'trf', 'dogbox' or 'lm'")
         if not 0 <= self.orb_track_min_level <= self.match_max_level:
             raise InputError("need 0 <= orb_track_min_level <= match_max_level")
         if self.matcher not in ("patch", "orb"):

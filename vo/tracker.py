@@ -417,7 +417,9 @@ class Tracker:
                 continue
             m = self._match(frame, {})
             if m.inlier.sum() >= cfg.reloc_min_matches and self._quality(m) != "bad":
-                break
+                cov = pose_covariance(m.H, m.sigma, orthonormalized(m.T))
+                if _rotation_std_deg(cov) <= cfg.reloc_max_rotation_std_deg:
+                    break
         else:
             timings["relocalize"] = _ms(t0)
             return FrameResult(frame.t, None, "lost")
@@ -428,9 +430,8 @@ class Tracker:
         self.lost = LostCounter(cfg)
         self.motion = np.eye(4)
         self.last = frame
-        T_w_c = frame.T_w_c
-        return FrameResult(frame.t, T_w_c, self._quality(m), pose_covariance(m.H, m.sigma, T_w_c),
-                           len(m.ids), m.n_attempts, int(m.inlier.sum()), new_segment=True)
+        return FrameResult(frame.t, frame.T_w_c, self._quality(m), cov, len(m.ids), m.n_attempts,
+                           int(m.inlier.sum()), new_segment=True)
 
     def _align_to_keyframe(self, frame: Frame, kf: Frame) -> float:
         """Frame's pose by direct alignment to keyframe kf from the best of the shifted
@@ -524,13 +525,26 @@ def shifted_priors(kf: Frame, frame: Frame, camera: CameraModel, level: int,
     a = np.float32(kf.pyr.images[level])
     b = np.float32(frame.pyr.images[level])
     (du, dv), _ = cv2.phaseCorrelate(a - a.mean(), b - b.mean())
-    du, dv = du * 2.0 ** level, dv * 2.0 ** level
+    # the correlation is circular: a shift by more than half the image (a view that overlaps
+    # the keyframe by less than half) shows up wrapped, so its unwrapped twin is tried too
+    priors = []
+    for su in (du, du - np.sign(du) * a.shape[1]):
+        for sv in (dv, dv - np.sign(dv) * a.shape[0]):
+            priors += _shift_priors(kf.T_c_w, camera, su * 2.0 ** level, sv * 2.0 ** level,
+                                    depth)
+    return priors
+
+
+def _shift_priors(T_c_w: np.ndarray, camera: CameraModel, du: float, dv: float,
+                  depth: float) -> list[np.ndarray]:
+    """The pose T_c_w turned, and moved sideways (scene at `depth`), so that its image content
+    shifts by (du, dv) pixels."""
     # content moves by +du when the camera turns by du / f about its y axis, or moves by
     # -du * depth / f along its x axis
     turn = np.array([0.0, 0.0, 0.0, -np.arctan(dv / camera.fy), np.arctan(du / camera.fx), 0.0])
     move = np.eye(4)
     move[:3, 3] = (du * depth / camera.fx, dv * depth / camera.fy, 0.0)
-    return [exp_se3(turn) @ kf.T_c_w, move @ kf.T_c_w]
+    return [exp_se3(turn) @ T_c_w, move @ T_c_w]
 
 
 @dataclass
@@ -547,6 +561,13 @@ class _Matches:
     T: np.ndarray
     H: np.ndarray | None
     sigma: float
+
+
+def _rotation_std_deg(cov: np.ndarray | None) -> float:
+    """The largest rotation standard deviation (degrees) of a pose covariance (inf if none)."""
+    if cov is None:
+        return np.inf
+    return float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(cov[3:, 3:])[-1], 0.0))))
 
 
 def _init_step(init: Initializer, frame: Frame, timings: dict[str, float]):

@@ -23,9 +23,11 @@ class Interval:
 
 
 def walkers_across(center, radius: float, count: int, duration: float, texture: int,
-                   rng: np.random.Generator, speed: float = 1.4) -> list[Walker]:
+                   rng: np.random.Generator, speed: float = 1.4,
+                   pause: float = 0.0) -> list[Walker]:
     """`count` people-sized boxes crossing a disc of `radius` m around `center` (x, y) at
-    walking speed, each entering at a random time of the flight."""
+    walking speed, each entering at a random time of the flight; with `pause`, each stops
+    for up to that many seconds somewhere along its way."""
     out = []
     for k in range(count):
         heading = rng.uniform(0, 2 * np.pi)
@@ -33,8 +35,10 @@ def walkers_across(center, radius: float, count: int, duration: float, texture: 
         offset = rng.uniform(-0.6, 0.6) * radius * np.array([-direction[1], direction[0]])
         start = np.asarray(center[:2], float) + offset - direction * radius
         v = direction * speed * rng.uniform(0.7, 1.3)
-        t0 = rng.uniform(0.0, max(duration - 2 * radius / speed, 0.1))
-        out.append(Walker(start, v, t0, texture, 0.004, int(rng.integers(1 << 30)) + k))
+        stop = rng.uniform(0.5, 1.0) * pause
+        t0 = rng.uniform(0.0, max(duration - 2 * radius / speed - stop, 0.1))
+        out.append(Walker(start, v, t0, texture, 0.004, int(rng.integers(1 << 30)) + k,
+                          pause_after=rng.uniform(0.3, 1.7) * radius / speed, pause=stop))
     return out
 
 

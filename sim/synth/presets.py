@@ -113,24 +113,30 @@ def room_handheld(seed: int, textures: str | None) -> FlightSpec:
 
 
 def walkers(seed: int, textures: str | None) -> FlightSpec:
-    """Hover at 8 m while eight people walk through the view; 20 s."""
+    """Hover at 5 m while a crowd of 24 people walks under the drone, each stopping for 2-4 s
+    on its way (long enough to be mapped, then it walks off with its map points); each is
+    about 90 px wide from above, together they cover up to about a third of the view; 20 s."""
     rng = np.random.default_rng(seed)
-    spec = FlightSpec(_hover_path(rng, 8.0, 20.0), outdoor_scene(seed, textures))
-    spec.scene.movers = walkers_across((0.0, 0.0), 6.0, 8, 20.0, DETAIL, rng)
+    spec = FlightSpec(_hover_path(rng, 5.0, 20.0), outdoor_scene(seed, textures))
+    spec.scene.movers = walkers_across((0.0, 0.0), 4.0, 24, 20.0, DETAIL, rng, speed=1.0,
+                                       pause=4.0)
     return spec
 
 
-def _out_and_back(altitude: float, length: float, speed: float) -> BodyPath:
-    corners = np.array([(0, 0, -altitude), (length, 0, -altitude), (length, 6, -altitude),
-                        (0, 6, -altitude)], float)
-    t, pos = travel(rounded_polyline(corners, 3.0), speed)
+def _out_and_back(altitude: float, length: float, speed: float,
+                  offset: float = 6.0) -> BodyPath:
+    """Out `length` m north, `offset` m east, and back south."""
+    corners = np.array([(0, 0, -altitude), (length, 0, -altitude), (length, offset, -altitude),
+                        (0, offset, -altitude)], float)
+    t, pos = travel(rounded_polyline(corners, offset / 2), speed)
     return path_from_waypoints(t, pos, np.zeros_like(t))
 
 
 def blackout(seed: int, textures: str | None) -> FlightSpec:
-    """Out 30 m and back at 10 m altitude; the lens is covered for 3 s at the far turn, then
-    the camera sees the ground it mapped on the way out again."""
-    path = _out_and_back(10.0, 30.0, 2.5)
+    """Out 30 m and back 3 m to the side at 10 m altitude; the lens is covered for 3 s at the
+    far turn, then the camera sees the ground it mapped on the way out again (about 60% of
+    the view when it returns; 6 m to the side it was a third)."""
+    path = _out_and_back(10.0, 30.0, 2.5, offset=3.0)
     mid = path.duration / 2
     return FlightSpec(path, outdoor_scene(seed, textures),
                       blackouts=(Interval(mid - 1.5, mid + 1.5),))

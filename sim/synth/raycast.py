@@ -149,6 +149,19 @@ def sample_texture(pixels, levels, n_levels, tex, x, y, lod):
 
 
 @numba.njit(cache=True, nogil=True)
+def overlay_sample(pixels, levels, n_levels, overlay, value, u, v, lod):
+    """`value` of the base texture at texel (u, v) blended with the overlay texture, sampled on
+    a grid scaled by overlay[2] and turned by overlay[3] rad: overlay = (base id, overlay id,
+    scale, angle, weight). Two tilings whose lattices never (nearly) coincide make a pattern
+    that does not repeat at flight scale although each texture does."""
+    k, ca, sa = overlay[2], math.cos(overlay[3]), math.sin(overlay[3])
+    over = sample_texture(pixels, levels, n_levels, int(overlay[1]), k * (ca * u - sa * v),
+                          k * (sa * u + ca * v), lod + math.log2(k))
+    w = overlay[4]  # the contrast of the sum stays that of one texture
+    return 128.0 + math.sqrt(1.0 - w * w) * (value - 128.0) + w * (over - 128.0)
+
+
+@numba.njit(cache=True, nogil=True)
 def nearest_quads(rays, R, c, geom, bounds):
     """Depth along the optical axis (inf where nothing is hit) and the index of the nearest
     quad (-1) of every pixel; each quad is tested only inside its pixel box."""
@@ -174,11 +187,12 @@ def nearest_quads(rays, R, c, geom, bounds):
 
 @numba.njit(cache=True, nogil=True)
 def shade(rays, pixel_angle, R, c, geom, tex, gain, hit, pixels, levels, n_levels,
-          background, detail):
+          background, detail, overlay):
     """Grey image (float32, 0..255 before effects): each pixel's quad, sampled at the mip level
     of the pixel's footprint on it. Where a texture is magnified (closer than one texel per
     pixel) the `detail` texture (id, frequency factor, amplitude; amplitude 0 = none) adds
-    finer structure, fading in over one mip level."""
+    finer structure, fading in over one mip level. Quads with the `overlay` base texture get a
+    second texture on top (see `overlay_sample`)."""
     h, w = rays.shape[0], rays.shape[1]
     image = np.full((h, w), background, np.float32)
     for r in range(h):
@@ -197,6 +211,8 @@ def shade(rays, pixel_angle, R, c, geom, tex, gain, hit, pixels, levels, n_level
             u = a / texel + geom[q, 12]
             v = b / texel + geom[q, 13]
             value = sample_texture(pixels, levels, n_levels, tex[q], u, v, lod)
+            if tex[q] == int(overlay[0]):
+                value = overlay_sample(pixels, levels, n_levels, overlay, value, u, v, lod)
             if lod < 0.0 and detail[2] > 0.0:
                 k = detail[1]
                 fine = sample_texture(pixels, levels, n_levels, int(detail[0]), u * k, v * k,
@@ -230,5 +246,6 @@ def render(scene: Scene, camera: CameraModel, T_w_c: np.ndarray,
     atlas = scene.atlas
     image = shade(rays, pixel_angle, R, c, quads.geometry, quads.texture, quads.gain, hit,
                   atlas.pixels, atlas.levels, atlas.n_levels, float(scene.background),
-                  np.asarray(scene.detail or (0.0, 1.0, 0.0), dtype=np.float64))
+                  np.asarray(scene.detail or (0.0, 1.0, 0.0), dtype=np.float64),
+                  np.asarray(scene.overlay or (-1.0, 0.0, 1.0, 0.0, 0.0), dtype=np.float64))
     return image, depth

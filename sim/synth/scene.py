@@ -105,7 +105,9 @@ def add_room(quads: QuadList, size, height: float, textures: tuple[int, int, int
 
 @dataclass
 class Walker:
-    """A people-sized textured box walking a straight line at constant speed from t_start."""
+    """A people-sized textured box walking a straight line at constant speed from t_start;
+    it stands still for `pause` s after walking `pause_after` s (people who stop for a while
+    become part of the map, then walk off with it)."""
 
     start: np.ndarray
     velocity: np.ndarray
@@ -114,13 +116,17 @@ class Walker:
     texel_m: float
     seed: int
     size: tuple = (0.5, 0.3, 1.8)
+    pause_after: float = 0.0
+    pause: float = 0.0
 
     def quads(self, t: float) -> QuadList:
         """The box at time t (empty before it starts)."""
         out = QuadList()
         if t < self.t_start:
             return out
-        pos = self.start + self.velocity * (t - self.t_start)
+        walked = t - self.t_start
+        walked -= min(max(walked - self.pause_after, 0.0), self.pause)
+        pos = self.start + self.velocity * walked
         yaw = float(np.arctan2(self.velocity[1], self.velocity[0]))
         add_box(out, pos, self.size, yaw, self.texture, self.texel_m,
                 np.random.default_rng(self.seed))
@@ -131,13 +137,16 @@ class Walker:
 class Scene:
     """Static quads, moving objects and the textures they use; `background` is the grey level
     of rays that hit nothing; `detail` (texture, frequency factor, amplitude) adds fine
-    structure to surfaces seen closer than one texel per pixel."""
+    structure to surfaces seen closer than one texel per pixel; `overlay` (base texture,
+    overlay texture, scale, angle rad, weight) blends a second, scaled and turned texture into
+    every quad of the base texture (an aperiodic ground)."""
 
     quads: QuadList
     atlas: TextureAtlas
     movers: list = field(default_factory=list)
     background: float = 128.0
     detail: tuple[int, float, float] | None = None
+    overlay: tuple[int, int, float, float, float] | None = None
     height_at: Callable | None = None
 
     def quads_at(self, t: float) -> QuadList:

@@ -10,15 +10,21 @@ from sim.synth.textures import build_atlas, photo_textures, procedural_texture
 
 GROUND, DETAIL, PHOTO0 = 0, 1, 2
 N_PHOTOS = 4
+OVERLAY = PHOTO0 + N_PHOTOS
 GROUND_TEXEL = 0.012  # m: the 2048-texel ground tile is 24.6 m wide
+# A second ground tiling, 22.75 m wide and turned by 33 degrees: wherever the first tile
+# repeats within 200 m the second is at least 2.6 m off its own lattice, so the sum of the
+# two never repeats at flight scale (a repeating ground fooled relocalisation by a tile).
+GROUND_OVERLAY = (GROUND, OVERLAY, 1024 * GROUND_TEXEL / 22.75, np.radians(33.0), 0.7)
 
 
 def texture_images(seed: int, source: str | None) -> list[np.ndarray]:
-    """Ground (2048 px), detail (1024 px) and four photos (procedural stand-ins when the photos
-    are not there or `source` is 'procedural')."""
+    """Ground (2048 px), detail (1024 px), four photos (procedural stand-ins when the photos
+    are not there or `source` is 'procedural') and the ground overlay (1024 px)."""
     photos = photo_textures(source)[:N_PHOTOS]
     photos += [procedural_texture(seed + 10 + k, 512) for k in range(N_PHOTOS - len(photos))]
-    return [procedural_texture(seed, 2048), procedural_texture(seed + 1, 1024), *photos]
+    return [procedural_texture(seed, 2048), procedural_texture(seed + 1, 1024), *photos,
+            procedural_texture(seed + 2, 1024)]
 
 
 def outdoor_scene(seed: int, source: str | None, clear_radius: float = 4.0,
@@ -49,7 +55,7 @@ def outdoor_scene(seed: int, source: str | None, clear_radius: float = 4.0,
         size = (rng.uniform(2, 8), rng.uniform(2, 8), rng.uniform(0.5, 3.0))
         add_box(quads, center, size, rng.uniform(0, np.pi), DETAIL, 0.008, rng)
     return Scene(quads, build_atlas(texture_images(seed, source)), background=150.0,
-                 detail=(DETAIL, 8.0, 0.4))
+                 detail=(DETAIL, 8.0, 0.4), overlay=GROUND_OVERLAY)
 
 
 def room_scene(seed: int, source: str | None, size=(10.0, 7.0), height: float = 3.0) -> Scene:
