@@ -176,9 +176,9 @@ class Initializer:
 
     def rotation_only(self) -> tuple[np.ndarray, float] | None:
         """(R_cur_ref, rms residual in px) while the tracks show no parallax: a rotation alone
-        moves ROTATION_ONLY_FRACTION of them to within init_ransac_px of where they are. The
-        camera may still have moved, but too little to see against the scene (less than about
-        init_ransac_px / focal of the scene depth); None once parallax shows."""
+        moves ROTATION_ONLY_FRACTION of them to within init_ransac_px of where they are; None
+        once parallax shows. A sideways move over a distant flat scene also fits a rotation, so
+        only at_rest() bounds how far the camera may have moved."""
         if self.ref is None or len(self.px_ref) < self.config.init_min_tracked:
             return None
         f_ref = self.camera.unproject(self.px_ref)
