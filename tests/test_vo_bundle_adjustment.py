@@ -8,7 +8,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from calib.camera import CameraModel
 from vo import bundle_adjustment as ba
+from vo.config import TrackerConfig
+from vo.frame import Frame
+from vo.map import CONVERGED, Map
 from vo.se3 import exp_se3, inv_se3
 
 FOCAL = 400.0
@@ -80,3 +84,85 @@ def test_outlier_observations_are_dropped():
     # the first iterations still feel the outliers, so some good observations go too
     assert keep.sum() >= 0.7 * len(keep)
     assert _rms(p, T, rho, keep) < 0.6
+
+
+def test_stop_ends_the_bundle_adjustment_early():
+    p, _, _, _ = _problem(np.random.default_rng(0))
+    T, rho, keep = ba.solve(p, 10, 10, stop=lambda: True)
+    assert np.array_equal(T, p.T0) and np.array_equal(rho, p.rho0) and keep.all()
+    calls = []
+    T, rho, _ = ba.solve(p, 10, 10, stop=lambda: calls.append(1) or len(calls) > 2)
+    assert _rms(p, T, rho) < p.rms_px()  # what was gained so far is kept
+    # checked before the first round and after each iteration; the third check stopped it,
+    # and the second round did not start
+    assert len(calls) == 4
+
+
+CAMERA = CameraModel(320, 240, 200.0, 200.0, 160.0, 120.0)
+KNOCK = {3: np.array([0.05, -0.03, 0.04, 0.004, 0.0, -0.003]),
+         4: np.array([-0.04, 0.05, -0.06, 0.0, -0.004, 0.002])}
+
+
+def _map(rng, seen_by: dict[int, int], n_points=80):
+    """A map of five keyframes driving forward 0.5 m apart, points 6-14 m ahead hosted by the
+    first two and seen by all (keyframe k by the first seen_by[k] of them); the two newest
+    keyframes are knocked off their true poses. Returns (map, true T_c_w per slot, config)."""
+    config = TrackerConfig(ba_min_views=2, ba_min_keyframe_obs=20)
+    map_ = Map(CAMERA.width, CAMERA.height, 3, 8)
+    T_true = np.array([exp_se3(np.array([0.05 * k, 0.0, -0.5 * k, 0.0, 0.01 * k, 0.0]))
+                       for k in range(5)])
+    host = np.arange(n_points) % 2
+    px = np.column_stack([rng.uniform(40, 280, n_points), rng.uniform(40, 200, n_points)])
+    f = CAMERA.unproject(px)
+    P = np.zeros((n_points, 3))
+    depth = rng.uniform(6, 14, n_points)
+    for h in (0, 1):
+        T_w_h = inv_se3(T_true[h])
+        P[host == h] = (f[host == h] * depth[host == h, None]) @ T_w_h[:3, :3].T + T_w_h[:3, 3]
+    pts = map_.points
+    ids = np.zeros(n_points, np.int64)
+    for h in (0, 1):  # the keyframes will take slots 0-4 in order
+        mine = np.flatnonzero(host == h)
+        rho = 1.0 / depth[mine] * (1.0 + rng.normal(0, 0.01, len(mine)))
+        ids[mine] = pts.add(h, px[mine, 0], px[mine, 1], np.zeros(len(mine), np.int64),
+                            f[mine], rho, 0.01 * rho, 2.0 * rho, 10.0, 10.0, inv_se3(T_true[h]))
+    pts.status[ids] = CONVERGED
+    for k in range(5):
+        frame = Frame(k, 0.1 * k, np.zeros((CAMERA.height, CAMERA.width), np.uint8), CAMERA, 3)
+        frame.T_c_w = T_true[k] if k < 3 else exp_se3(KNOCK[k]) @ T_true[k]
+        seen = np.flatnonzero(host != k)[:seen_by.get(k, n_points)]
+        uv = CAMERA.project(P[seen] @ T_true[k][:3, :3].T + T_true[k][:3, 3])
+        uv += rng.normal(0, 0.2, uv.shape)
+        frame.set_features(ids[seen], uv, np.zeros(len(seen), np.int64))
+        assert map_.add_keyframe(frame) == k
+    return map_, T_true, config
+
+
+def _pose_error(T, T_true):
+    return np.linalg.norm(inv_se3(T)[:3, 3] - inv_se3(T_true)[:3, 3])
+
+
+def test_local_ba_pulls_knocked_keyframes_back_and_the_last_frame_follows():
+    map_, T_true, config = _map(np.random.default_rng(3), {2: 60, 3: 60})
+    before = [_pose_error(map_.kf_T_c_w[s], T_true[s]) for s in (3, 4)]
+    last_T = exp_se3(np.array([0.0, 0.0, -0.3, 0.0, 0.0, 0.0])) @ map_.kf_T_c_w[4]
+    relative = last_T @ inv_se3(map_.kf_T_c_w[4])
+    followed = []
+
+    def follow(moved):
+        assert {3, 4} <= set(moved)
+        followed.append(ba.follow(last_T, map_.keyframes[4].feat_point, map_, moved))
+
+    assert ba.local_ba(map_, 4, CAMERA, config, moved_keyframes=follow) > 0
+    after = [_pose_error(map_.kf_T_c_w[s], T_true[s]) for s in (3, 4)]
+    assert max(after) < 0.3 * min(before)
+    assert np.array_equal(map_.kf_T_c_w[0], T_true[0])  # the gauge stays
+    # the last frame keeps its pose relative to the keyframe it shares its points with
+    np.testing.assert_allclose(followed[0] @ inv_se3(map_.kf_T_c_w[4]), relative, atol=1e-9)
+
+
+def test_a_keyframe_the_window_barely_sees_is_held():
+    map_, _, config = _map(np.random.default_rng(4), {4: 12})
+    p = ba.build_problem(map_, 3, CAMERA, config)
+    free = set(p.slots[:p.n_free].tolist())
+    assert 3 in free and 4 not in free and 4 in set(p.slots.tolist())

@@ -16,6 +16,7 @@ it (tracking goes on), and written back under the lock.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -76,6 +77,13 @@ def build_problem(map_: Map, slot: int, camera: CameraModel,
         return None
     rows = np.flatnonzero(np.isin(obs.point, ids) & np.isin(obs.kf, alive_kf)
                           & (obs.kf != pts.host[obs.point]))
+    # a keyframe the window barely sees is held: tracking placed it from all its matches,
+    # a handful of points would re-place it worse (kitti00: 6-12 of ~50, moved 1.1 m)
+    links = np.bincount(np.concatenate((obs.kf[rows], pts.host[obs.point[rows]])),
+                        minlength=len(map_.kf_pyr))
+    free = [s for s in free if links[s] >= config.ba_min_keyframe_obs]
+    if not free:
+        return None
     fixed = sorted((set(obs.kf[rows].tolist()) | set(pts.host[ids].tolist())) - set(free))
     while len(fixed) < MIN_FIXED:
         if len(free) < 2:
@@ -152,19 +160,27 @@ def sparsity(p: Problem, keep: np.ndarray) -> coo_matrix:
                       shape=(2 * n_obs + len(p.points), p.n_params)).tocsr()
 
 
-def solve(p: Problem, first: int = 5, second: int = 10,
-          method: str = "trf") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def solve(p: Problem, first: int = 5, second: int = 10, method: str = "trf",
+          stop: Callable[[], bool] = lambda: False
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Optimise: `first` iterations, drop chi2(2 dof, 95%) outliers (1 px sigma), `second`
     more. Returns (T_c_w of the slots, inverse depths, kept-observation mask). `method` is
-    scipy's: 'trf' or 'dogbox' (sparse), 'lm' (MINPACK, dense)."""
+    scipy's: 'trf' or 'dogbox' (sparse), 'lm' (MINPACK, dense). Once `stop()` says so (a
+    frame waits for the mapping thread), the BA ends after the current iteration ('lm': the
+    current round) with the best parameters so far."""
     x = np.zeros(p.n_params)
     keep = np.ones(len(p.obs_kf), dtype=bool)
+
+    def check(_x: np.ndarray) -> None:
+        if stop():
+            raise StopIteration
+
     for rounds, drop in ((first, True), (second, False)):
-        if rounds <= 0 or keep.sum() < 6:
+        if rounds <= 0 or keep.sum() < 6 or stop():
             break
         start = np.sum(residuals(x, p, keep) ** 2)
         sparse = {} if method == "lm" else {"jac_sparsity": sparsity(p, keep),
-                                            "x_scale": "jac"}
+                                            "x_scale": "jac", "callback": check}
         res = least_squares(residuals, x, method=method, args=(p, keep), **sparse,
                             max_nfev=_nfev(rounds, method, p.n_params))
         if np.sum(res.fun ** 2) < start:
@@ -183,20 +199,21 @@ def _nfev(iterations: int, method: str, n_params: int) -> int:
     return iterations * (n_params + 1) if method == "lm" else iterations
 
 
-def apply(map_: Map, p: Problem, T: np.ndarray, rho: np.ndarray, keep: np.ndarray) -> None:
+def apply(map_: Map, p: Problem, T: np.ndarray, rho: np.ndarray,
+          keep: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Write an optimised problem back (call with the map lock held): keyframe poses, the
     points' inverse depths, the positions of everything the moved keyframes host; outlier
-    observations are forgotten."""
+    observations are forgotten. Returns the moved keyframes: slot -> (T_c_w before, after)."""
     pts = map_.points
-    moved = set()
+    moved = {}
     for k, slot in enumerate(p.slots[:p.n_free]):
         if int(slot) in map_.keyframes:
+            moved[int(slot)] = (map_.kf_T_c_w[slot].copy(), T[k].copy())
             map_.kf_T_c_w[slot] = T[k]
             map_.keyframes[int(slot)].T_c_w = T[k].copy()
-            moved.add(int(slot))
     ok = (pts.status[p.points] == CONVERGED) & (rho > 0)
     pts.rho[p.points[ok]] = rho[ok]
-    for slot in moved | set(p.slots[p.host[ok]].tolist()):
+    for slot in set(moved) | set(p.slots[p.host[ok]].tolist()):
         if slot in map_.keyframes:
             hosted = np.flatnonzero((pts.host == slot) & (pts.status != FREE))
             pts.update_positions(hosted, inv_se3(map_.kf_T_c_w[slot]))
@@ -205,10 +222,31 @@ def apply(map_: Map, p: Problem, T: np.ndarray, rho: np.ndarray, keep: np.ndarra
         n = len(map_.kf_pyr)
         bad = p.points[p.obs_pt[~keep]] * n + p.obs_slot[~keep]
         map_.obs.keep(~np.isin(map_.obs.point * n + map_.obs.kf, bad))
+    return moved
 
 
-def local_ba(map_: Map, slot: int, camera: CameraModel, config: TrackerConfig) -> int:
-    """Run local BA around keyframe `slot`; returns the number of observations used."""
+def follow(T_c_w: np.ndarray, point_ids: np.ndarray, map_: Map,
+           moved: dict[int, tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """The pose of a frame tracked before a BA moved keyframes (`moved` as apply returns),
+    moved along with the moved keyframe that observes most of its points `point_ids`, the
+    newest of equals (its pose relative to that keyframe is kept); unchanged when none does.
+    Call with the map lock held."""
+    obs = map_.obs
+    seen = np.concatenate((obs.kf[np.isin(obs.point, point_ids)], map_.points.host[point_ids]))
+    shared = np.bincount(seen, minlength=len(map_.kf_pyr))
+    ref = max(moved, default=None, key=lambda s: (shared[s], map_.keyframes[s].id))
+    if ref is None or shared[ref] == 0:
+        return T_c_w
+    T_old, T_new = moved[ref]
+    return T_c_w @ inv_se3(T_old) @ T_new
+
+
+def local_ba(map_: Map, slot: int, camera: CameraModel, config: TrackerConfig,
+             stop: Callable[[], bool] = lambda: False,
+             moved_keyframes: Callable[[dict], None] = lambda moved: None) -> int:
+    """Run local BA around keyframe `slot`; returns the number of observations used. `stop`
+    as for solve; `moved_keyframes` gets apply's result while the map lock is still held (a
+    tracker moves its last pose along before it tracks against the new map)."""
     with map_.lock:
         problem = build_problem(map_, slot, camera, config)
     if problem is None:
@@ -216,7 +254,7 @@ def local_ba(map_: Map, slot: int, camera: CameraModel, config: TrackerConfig) -
     if problem.rms_px() < config.ba_min_rms_px:
         return 0  # already consistent to within the noise: nothing to gain
     T, rho, keep = solve(problem, config.ba_first_iterations, config.ba_second_iterations,
-                         config.ba_method)
+                         config.ba_method, stop)
     with map_.lock:
-        apply(map_, problem, T, rho, keep)
+        moved_keyframes(apply(map_, problem, T, rho, keep))
     return int(keep.sum())

@@ -97,6 +97,9 @@ class TrackerConfig:
     # points in the BA need this many keyframe observations besides their host's (fewer
     # views re-triangulate them worse than the depth filter, which saw every frame)
     ba_min_views: int = 3
+    # a keyframe is free only with this many observations in the problem (its own and those
+    # of the points it hosts by other keyframes); others are held fixed
+    ba_min_keyframe_obs: int = 0
     # the BA runs only when the local problem's rms reprojection error is at least this
     # (pixels): below, the keyframes already agree to within the noise
     ba_min_rms_px: float = 0.5

@@ -153,6 +153,11 @@ class Mapper:
         # waiting); skipped ones are counted
         self.ba_allowed: Callable[[], bool] = lambda: True
         self.skipped_ba = 0
+        self.shortened_ba = 0  # BAs ended early because a frame came (threaded)
+        self._ba_cut = False
+        # called with the keyframes a BA moved (slot -> (T_c_w before, after)) while the map
+        # lock is held: the tracker moves its last pose along
+        self.after_ba: Callable[[dict], None] = lambda moved: None
         # called with each frame before its step (threaded mapping only): a service holds the
         # mapping thread here until the frame's estimate is on its way (daemon.tracking)
         self.before_step: Callable[[Frame], None] = lambda frame: None
@@ -248,9 +253,17 @@ class Mapper:
             if self.n_keyframes_added % 10 == 0:
                 self.map.prune_observations()
         if cfg.local_ba and self.ba_allowed():
-            local_ba(self.map, slot, self.camera, cfg)
+            self._ba_cut = False
+            local_ba(self.map, slot, self.camera, cfg, self._stop_ba, self.after_ba)
+            self.shortened_ba += int(self._ba_cut)
         else:
             self.skipped_ba += int(cfg.local_ba)
+
+    def _stop_ba(self) -> bool:
+        """True once tracking has a frame waiting: the BA ends early rather than fall
+        behind."""
+        self._ba_cut = self._ba_cut or not self.ba_allowed()
+        return self._ba_cut
 
     def _orb_query(self, frame: Frame, pid: np.ndarray, desc: np.ndarray,
                    desc_state: np.ndarray, fill_refs) -> OrbQuery:
