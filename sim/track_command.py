@@ -133,6 +133,9 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
     estimate = Trajectory.from_matrices(np.array(times), np.array(poses)) if poses else None
     report = build_report(sequence, n_frames, estimate, np.array(segment), timings, qualities,
                           first_pose_s, tracker.dropped_mapping_frames)
+    # local BAs the mapping thread skipped or ended early for a waiting frame (current map)
+    report["ba_skipped"] = tracker.mapper.skipped_ba
+    report["ba_shortened"] = tracker.mapper.shortened_ba
     if memory_every:
         report["memory"] = memory
         report["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0

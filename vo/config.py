@@ -94,19 +94,21 @@ class TrackerConfig:
     local_ba: bool = False
     ba_first_iterations: int = 5
     ba_second_iterations: int = 10
-    # points in the BA need this many keyframe observations besides their host's (fewer
-    # views re-triangulate them worse than the depth filter, which saw every frame)
-    ba_min_views: int = 3
+    # points in the BA need this many keyframe observations besides their host's; with 3
+    # (before) the free keyframes kept 0-12 of their ~50 observations (kitti00, survey-down)
+    # and one BA moved them by 0.3-1.1 m. 1 is worse again on survey-down (0.51 m, 2: 0.095)
+    ba_min_views: int = 2
     # a keyframe is free only with this many observations in the problem (its own and those
-    # of the points it hosts by other keyframes); others are held fixed
-    ba_min_keyframe_obs: int = 0
+    # of the points it hosts, by other keyframes); one the window barely sees is held fixed:
+    # tracking placed it from all its matches, a handful of points would place it worse
+    ba_min_keyframe_obs: int = 20
     # the BA runs only when the local problem's rms reprojection error is at least this
     # (pixels): below, the keyframes already agree to within the noise
     ba_min_rms_px: float = 0.5
     # each point's depth filter estimate is a prior with the filter's sigma times this
     ba_depth_prior_inflation: float = 1.0
     # scipy least_squares method: 'trf' or 'dogbox' (sparse Jacobian; same final cost on
-    # survey/KITTI problems, dogbox ~25% faster), 'lm' (MINPACK, dense: 5-7x slower at 180 points)
+    # survey/KITTI/vamr problems, dogbox 16-33% faster), 'lm' (MINPACK, dense: 2-5x slower)
     ba_method: str = "trf"
 
     # map initialisation (6.6.1)
