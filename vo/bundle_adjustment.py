@@ -165,13 +165,15 @@ def sparsity(p: Problem, keep: np.ndarray) -> coo_matrix:
 
 
 def solve(p: Problem, first: int = 5, second: int = 10, method: str = "trf",
-          stop: Callable[[], bool] = lambda: False
+          stop: Callable[[], bool] = lambda: False, pause: Callable[[], None] = lambda: None
           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Optimise: `first` iterations, drop chi2(2 dof, 95%) outliers (1 px sigma), `second`
     more. Returns (T_c_w of the slots, inverse depths, kept-observation mask). `method` is
     scipy's: 'trf' or 'dogbox' (sparse), 'lm' (MINPACK, dense). Once `stop()` says so (a
     frame waits for the mapping thread), the BA ends after the current iteration ('lm': the
-    current round) with the best parameters so far."""
+    current round) with the best parameters so far. `pause()` is called before each
+    evaluation of the residuals: a tracker holds the BA there while it tracks a frame (the
+    solver's Python code would take the GIL from it)."""
     x = np.zeros(p.n_params)
     keep = np.ones(len(p.obs_kf), dtype=bool)
 
@@ -185,7 +187,7 @@ def solve(p: Problem, first: int = 5, second: int = 10, method: str = "trf",
         start = np.sum(residuals(x, p, keep) ** 2)
         sparse = {} if method == "lm" else {"jac_sparsity": sparsity(p, keep),
                                             "x_scale": "jac", "callback": check}
-        res = least_squares(residuals, x, method=method, args=(p, keep), **sparse,
+        res = least_squares(_paused(pause, residuals), x, method=method, args=(p, keep), **sparse,
                             max_nfev=_nfev(rounds, method, p.n_params))
         if np.sum(res.fun ** 2) < start:
             x = res.x
@@ -195,6 +197,14 @@ def solve(p: Problem, first: int = 5, second: int = 10, method: str = "trf",
             keep = (e ** 2).sum(axis=1) < CHI2_2DOF_95
     T, rho = unpack(p, x)
     return T, rho, keep
+
+
+def _paused(pause: Callable[[], None], fun: Callable) -> Callable:
+    """fun, calling pause() first."""
+    def paused(*args):
+        pause()
+        return fun(*args)
+    return paused
 
 
 def _nfev(iterations: int, method: str, n_params: int) -> int:
@@ -247,10 +257,11 @@ def follow(T_c_w: np.ndarray, point_ids: np.ndarray, map_: Map,
 
 def local_ba(map_: Map, slot: int, camera: CameraModel, config: TrackerConfig,
              stop: Callable[[], bool] = lambda: False,
-             moved_keyframes: Callable[[dict], None] = lambda moved: None) -> int:
+             moved_keyframes: Callable[[dict], None] = lambda moved: None,
+             pause: Callable[[], None] = lambda: None) -> int:
     """Run local BA around keyframe `slot`; returns the number of observations used. `stop`
-    as for solve; `moved_keyframes` gets apply's result while the map lock is still held (a
-    tracker moves its last pose along before it tracks against the new map)."""
+    and `pause` as for solve; `moved_keyframes` gets apply's result while the map lock is
+    still held (a tracker moves its last pose along before it tracks against the new map)."""
     with map_.lock:
         problem = build_problem(map_, slot, camera, config)
     if problem is None:
@@ -258,7 +269,7 @@ def local_ba(map_: Map, slot: int, camera: CameraModel, config: TrackerConfig,
     if problem.rms_px() < config.ba_min_rms_px:
         return 0  # already consistent to within the noise: nothing to gain
     T, rho, keep = solve(problem, config.ba_first_iterations, config.ba_second_iterations,
-                         config.ba_method, stop)
+                         config.ba_method, stop, pause)
     with map_.lock:
         moved_keyframes(apply(map_, problem, T, rho, keep))
     return int(keep.sum())

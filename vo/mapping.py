@@ -158,6 +158,8 @@ class Mapper:
         # called with the keyframes a BA moved (slot -> (T_c_w before, after)) while the map
         # lock is held: the tracker moves its last pose along
         self.after_ba: Callable[[dict], None] = lambda moved: None
+        # called between the BA solver's steps: waits while the tracker tracks a frame
+        self.ba_pause: Callable[[], None] = lambda: None
         # called with each frame before its step (threaded mapping only): a service holds the
         # mapping thread here until the frame's estimate is on its way (daemon.tracking)
         self.before_step: Callable[[Frame], None] = lambda frame: None
@@ -254,7 +256,8 @@ class Mapper:
                 self.map.prune_observations()
         if cfg.local_ba and self.ba_allowed():
             self._ba_cut = False
-            local_ba(self.map, slot, self.camera, cfg, self._stop_ba, self.after_ba)
+            local_ba(self.map, slot, self.camera, cfg, self._stop_ba, self.after_ba,
+                     self.ba_pause)
             self.shortened_ba += int(self._ba_cut)
         else:
             self.skipped_ba += int(cfg.local_ba)

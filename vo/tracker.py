@@ -32,6 +32,9 @@ from vo.result import FrameResult
 from vo.se3 import exp_se3, inv_se3, orthonormalized
 
 MIN_POSE_MATCHES = 6
+# a local BA in the mapping thread waits at most this long (s) per solver step while a frame
+# is tracked: its Python code would otherwise take the GIL from tracking between numba calls
+BA_PAUSE_MAX_S = 0.05
 
 
 class Tracker:
@@ -47,6 +50,8 @@ class Tracker:
         self._frame_id = 0
         self._queue: queue.Queue | None = None
         self._thread: threading.Thread | None = None
+        self._idle = threading.Event()  # clear while a frame is being tracked
+        self._idle.set()
         self.reprojector = Reprojector(camera, self.config.grid_cell, self.config.seed)
         self._reset()
 
@@ -61,6 +66,7 @@ class Tracker:
         self.mapper.after_ba = self._follow_ba
         if self.threaded:
             self.mapper.ba_allowed = lambda: self._queue.empty()
+            self.mapper.ba_pause = lambda: self._idle.wait(BA_PAUSE_MAX_S)
         self.initializer = Initializer(self.camera, cfg)
         self.posed_ref: Frame | None = None  # the initialiser reference poses were given from
         self.last: Frame | None = None
@@ -135,6 +141,13 @@ class Tracker:
                              f"{self.camera.width}x{self.camera.height}")
         if self._mapping_error is not None:
             raise RuntimeError("the mapping thread failed") from self._mapping_error
+        self._idle.clear()  # a BA in the mapping thread waits until the frame is tracked
+        try:
+            return self._process(image, float(t))
+        finally:
+            self._idle.set()
+
+    def _process(self, image: np.ndarray, t: float) -> FrameResult:
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
         frame = Frame(self._frame_id, float(t), image, self.camera, self.config.pyramid_levels)
@@ -151,6 +164,7 @@ class Tracker:
             with self.map.lock:
                 result, keyframe = self._track(frame, timings)
         timings["track"] = _ms(t0)
+        self._idle.set()  # tracked: a BA may go on (a full mapping queue must not stall it)
         if result.quality == "lost":
             self._on_lost()  # outside the map lock: a reset joins the mapping thread
         # mapping follows frames tracked against the map (a new map's frames are in it
