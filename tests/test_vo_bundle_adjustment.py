@@ -14,6 +14,7 @@ from vo.config import TrackerConfig
 from vo.frame import Frame
 from vo.map import CONVERGED, Map
 from vo.se3 import exp_se3, inv_se3
+from vo.tracker import Tracker
 
 FOCAL = 400.0
 
@@ -166,3 +167,26 @@ def test_a_keyframe_the_window_barely_sees_is_held():
     p = ba.build_problem(map_, 3, CAMERA, config)
     free = set(p.slots[:p.n_free].tolist())
     assert 3 in free and 4 not in free and 4 in set(p.slots.tolist())
+
+
+def test_the_trackers_last_frame_follows_a_bundle_adjustment():
+    """Threaded mapping: the BA ran on a keyframe while the tracker went on; its last frame
+    (the next frame's prior) moves along under the map lock; a keyframe as last frame is the
+    map's and was moved by the BA itself."""
+    tracker = Tracker(CAMERA, TrackerConfig(local_ba=True))
+    tracker.map, _, config = _map(np.random.default_rng(5), {2: 60, 3: 60})
+    tracker.mapper.map = tracker.map
+    last = Frame(9, 0.9, np.zeros((CAMERA.height, CAMERA.width), np.uint8), CAMERA, 3)
+    last.T_c_w = exp_se3(np.array([0.0, 0.0, -0.3, 0.0, 0.0, 0.0])) @ tracker.map.kf_T_c_w[4]
+    last.set_features(tracker.map.keyframes[4].feat_point, np.zeros((80, 2)),
+                      np.zeros(80, np.int64))
+    tracker.last = last
+    relative = last.T_c_w @ inv_se3(tracker.map.kf_T_c_w[4])
+    assert ba.local_ba(tracker.map, 4, CAMERA, config,
+                       moved_keyframes=tracker.mapper.after_ba) > 0
+    np.testing.assert_allclose(last.T_c_w @ inv_se3(tracker.map.kf_T_c_w[4]), relative,
+                               atol=1e-9)
+    keyframe = tracker.last = tracker.map.keyframes[4]
+    before = keyframe.T_c_w.copy()
+    tracker._follow_ba({4: (np.eye(4), exp_se3(np.full(6, 0.01)))})
+    assert np.array_equal(keyframe.T_c_w, before)
