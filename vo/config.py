@@ -48,6 +48,10 @@ class TrackerConfig:
     ransac_rescue_px: float = 4.0
     ransac_probability: float = 0.99
     ransac_max_hypotheses: int = 100
+    # with outlier rejection, a point matched but rejected this many tracked frames in a row
+    # leaves the map (a person who stood while mapped and walked off; its many finds kept it
+    # first in its grid cell, where it kept closing the cell to the ground points)
+    point_max_rejected: int = 3
 
     # quality (6.10)
     quality_min_ratio: float = 0.2

@@ -347,12 +347,24 @@ class Tracker:
         frame.n_visible = m.n_visible
         pts = self.map.points
         pts.n_found[ids[inlier]] += 1
+        if cfg.outlier_rejection:
+            self._forget_rejected(ids, inlier)
         missed = np.setdiff1d(m.attempted, ids)
         pts.n_missed[missed] += 1
         # points that keep failing (occluded, badly placed, moving) leave the map
         hopeless = (pts.n_missed[missed] > cfg.point_max_missed) & (
             pts.n_missed[missed] > 2 * pts.n_found[missed])
         pts.delete(missed[hopeless])
+
+    def _forget_rejected(self, ids: np.ndarray, inlier: np.ndarray) -> None:
+        """Map hygiene of outlier rejection (6.8): matched points the pose rejects in
+        point_max_rejected tracked frames in a row have moved or were badly placed; they leave
+        the map instead of being matched (and rejected) again in every frame."""
+        pts = self.map.points
+        pts.n_rejected[ids[inlier]] = 0
+        rejected = ids[~inlier]
+        pts.n_rejected[rejected] += 1
+        pts.delete(rejected[pts.n_rejected[rejected] >= self.config.point_max_rejected])
 
     def _keyframe_due(self, n_seen: int, good: bool) -> bool:
         """Count a tracked frame that sees n_seen map points; True when it becomes a keyframe
