@@ -17,10 +17,11 @@ from vo.tracker import Tracker
 
 
 def _reference_ransac(pos_w, obs, scale, T_prior, subsets, threshold, p):
-    """Eq. 6.12 RANSAC written plainly: numerical Jacobians, Python loops."""
-    def errors(T, idx):
+    """Eq. 6.12 RANSAC written plainly: numerical Jacobians, Python loops; hypotheses fitted with
+    the level weights, inliers by the unweighted error."""
+    def errors(T, idx, weight=scale):
         X = pos_w[idx] @ T[:3, :3].T + T[:3, 3]
-        return ((obs[idx] - X[:, :2] / X[:, 2:]) * scale[idx, None]).ravel()
+        return ((obs[idx] - X[:, :2] / X[:, 2:]) * weight[idx, None]).ravel()
 
     best, best_count, needed, tried = None, -1, len(subsets), 0
     while tried < needed:
@@ -31,7 +32,7 @@ def _reference_ransac(pos_w, obs, scale, T_prior, subsets, threshold, p):
                                  / 1e-7 for a in range(6)])
             T = exp_se3(np.linalg.lstsq(J, -e, rcond=None)[0]) @ T
         tried += 1
-        err = errors(T, np.arange(len(pos_w))).reshape(-1, 2)
+        err = errors(T, np.arange(len(pos_w)), np.ones(len(pos_w))).reshape(-1, 2)
         inlier = (err ** 2).sum(axis=1) < threshold ** 2
         if inlier.sum() > best_count:
             best, best_count = inlier, inlier.sum()
@@ -111,3 +112,28 @@ def test_rejection_keeps_a_moving_object_out_of_the_pose(flights):
     # stay in the map (issue #5 open)
     assert with_rejection <= 1.7 * calm_ate
     assert with_rejection < 0.1 * without
+
+
+WALKERS_SIZE = (320, 240)
+
+
+def _track_walkers(preset: str, rejection: bool) -> tuple[float, int, int]:
+    """ATE (Sim(3)), frames tracked and frames of the walkers flight at WALKERS_SIZE."""
+    from sim.synth.flight import synthetic_sequence
+    from sim.track_command import track_sequence
+
+    seq = synthetic_sequence(preset, size=WALKERS_SIZE, textures="procedural")
+    report, _ = track_sequence(seq, TrackerConfig(outlier_rejection=rejection), False, None,
+                               True)
+    return report["ate_rmse_m"], report["tracked"], report["frames"]
+
+
+def test_rejection_keeps_the_walkers_flight_as_good_as_the_empty_square():
+    calm, _, _ = _track_walkers("walkers-empty", True)
+    with_rejection, tracked, frames = _track_walkers("walkers", True)
+    without, _, _ = _track_walkers("walkers", False)
+    assert tracked >= 0.95 * frames
+    # the issue's acceptance: within 1.5x of the flight without people, and clearly better
+    # than without rejection (measured: see the bounds' comment)
+    assert with_rejection <= 1.5 * calm
+    assert with_rejection < 0.5 * without

@@ -299,7 +299,7 @@ class Tracker:
             if cfg.outlier_rejection:
                 # rescue: outliers within a wider threshold of the inlier pose join them
                 frame.T_c_w, prior = T, frame.T_c_w
-                use = self._errors(frame, ids, uv, levels) * focal < cfg.ransac_rescue_px
+                use = self._errors(frame, ids, uv) * focal < cfg.ransac_rescue_px
                 frame.T_c_w = prior
                 T, H, sigma, err = self._optimize(frame, ids[use], uv[use], levels[use])
             m.T, m.H, m.sigma = T, H, sigma
@@ -307,14 +307,12 @@ class Tracker:
         timings["pose"] = _ms(t0)
         return m
 
-    def _errors(self, frame: Frame, ids: np.ndarray, uv: np.ndarray,
-                levels: np.ndarray) -> np.ndarray:
-        """Level-scaled reprojection errors (normalised plane) of matches at frame's pose."""
+    def _errors(self, frame: Frame, ids: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        """Reprojection errors (normalised plane) of matches at frame's pose."""
         f = self.camera.unproject(uv)
         obs = np.ascontiguousarray(f[:, :2] / f[:, 2:])
-        scale = 1.0 / 2.0 ** levels
         pos = np.ascontiguousarray(self.map.points.pos_w[ids])
-        return np.sqrt(outlier_rejection.squared_errors(pos, obs, scale, frame.T_c_w))
+        return np.sqrt(outlier_rejection.squared_errors(pos, obs, frame.T_c_w))
 
     def _reject_outliers(self, frame: Frame, ids: np.ndarray, uv: np.ndarray,
                          levels: np.ndarray) -> np.ndarray:
