@@ -43,6 +43,7 @@ class TrackerConfig:
     # outlier rejection (6.8): RANSAC over 5-point subsets of the matches, inliers within
     # ransac_threshold_px (image pixels), hypotheses for ransac_probability at most
     # ransac_max_hypotheses; then outliers within ransac_rescue_px of the inlier pose rejoin
+    outlier_rejection: bool = False
     ransac_threshold_px: float = 2.0
     ransac_rescue_px: float = 4.0
     ransac_probability: float = 0.99
