@@ -113,9 +113,9 @@ def room_handheld(seed: int, textures: str | None) -> FlightSpec:
 
 
 def _stop_and_go(altitude: float, before: float, stop: float, after: float, speed: float,
-                 rng: np.random.Generator) -> tuple[BodyPath, float, float]:
+                 rng: np.random.Generator) -> tuple[BodyPath, float]:
     """North `before` m to the origin, hold there `stop` s with a +-0.1 m wander, north
-    `after` m more: the path, and when the hold starts and ends."""
+    `after` m more: the path, and when the hold starts."""
     t1, p1 = travel(np.array([(-before, 0, -altitude), (0, 0, -altitude)], float), speed,
                     ramp_s=1.5)
     th = t1[-1] + np.arange(0.5, stop, 0.5)
@@ -124,7 +124,7 @@ def _stop_and_go(altitude: float, before: float, stop: float, after: float, spee
                     ramp_s=1.5)
     t = np.concatenate([t1, th, t2 + t1[-1] + stop])
     pos = np.vstack([p1, ph, p2])
-    return path_from_waypoints(t, pos, np.zeros_like(t)), float(t1[-1]), float(t1[-1] + stop)
+    return path_from_waypoints(t, pos, np.zeros_like(t)), float(t1[-1])
 
 
 def walkers(seed: int, textures: str | None) -> FlightSpec:
@@ -135,7 +135,7 @@ def walkers(seed: int, textures: str | None) -> FlightSpec:
     third of the view while the drone holds above the group (0.34 at 5 s, 0.14 at 9.5 s);
     16 s. `walkers_empty` is the same flight with nobody on the square."""
     rng = np.random.default_rng(seed)
-    path, hold, _ = _stop_and_go(5.0, 5.0, 5.0, 5.0, 1.2, rng)
+    path, hold = _stop_and_go(5.0, 5.0, 5.0, 5.0, 1.2, rng)
     spec = FlightSpec(path, outdoor_scene(seed, textures))
     spec.scene.movers = (crowd_leaving((0.3, 0.0), 14, (3.0, 4.0), hold + 1.0,
                                        rng.uniform(0, 2 * np.pi), DETAIL, rng)
