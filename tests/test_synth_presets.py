@@ -60,15 +60,20 @@ def test_blackout_covers_the_lens_and_kidnap_skips_frames():
     assert jump.imu.t[-1] == pytest.approx(jump.timestamps[-1])
 
 
-def test_walkers_move_through_the_view():
+def test_walkers_stand_under_the_stop_then_walk_off():
     seq = synthetic_sequence("walkers", size=SIZE, textures="procedural")
+    empty = synthetic_sequence("walkers-empty", size=SIZE, textures="procedural")
+    np.testing.assert_array_equal(seq.groundtruth.positions, empty.groundtruth.positions)
     movers = seq.image_loader.spec.scene.movers
-    assert len(movers) == 24
-    t = np.array([m.t_start for m in movers]) + 4.0  # about 4 m into its walk: under the drone
-    i = int(np.searchsorted(seq.timestamps, t[0]))
-    still = synthetic_sequence("walkers", size=SIZE, textures="procedural")
-    still.image_loader.spec.scene.movers = []
-    assert np.abs(seq.image(i).astype(int) - still.image(i)).max() > 50
+    group = [m for m in movers if m.t_start == 0.0]
+    assert len(movers) == 20 and len(group) == 14
+    leave = min(m.pause for m in group)
+    i = int(np.searchsorted(seq.timestamps, leave - 0.5))  # the drone holds above the group
+    assert np.linalg.norm(seq.groundtruth.positions[i, :2]) < 0.5
+    assert np.abs(seq.image(i).astype(int) - empty.image(i)).max() > 50
+    start = np.array([m.quads(0.0).geometry[0, :2] for m in group])
+    later = np.array([m.quads(leave + 3.0).geometry[0, :2] for m in group])
+    assert np.all(np.linalg.norm(later - start, axis=1) > 1.0)  # the whole group walked off
 
 
 def test_bad_render_arguments_are_one_line_errors(tmp_path, capsys):

@@ -41,13 +41,17 @@ class TrackerConfig:
     constant_velocity: bool = True
 
     # outlier rejection (6.8): RANSAC over 5-point subsets of the matches, inliers within
-    # ransac_threshold_px (at the match's level), hypotheses for ransac_probability at most
+    # ransac_threshold_px (image pixels), hypotheses for ransac_probability at most
     # ransac_max_hypotheses; then outliers within ransac_rescue_px of the inlier pose rejoin
     outlier_rejection: bool = False
     ransac_threshold_px: float = 2.0
     ransac_rescue_px: float = 4.0
     ransac_probability: float = 0.99
     ransac_max_hypotheses: int = 100
+    # with outlier rejection, a point matched but rejected this many tracked frames in a row
+    # leaves the map (a person who stood while mapped and walked off; its many finds kept it
+    # first in its grid cell, where it kept closing the cell to the ground points)
+    point_max_rejected: int = 3
 
     # quality (6.10)
     quality_min_ratio: float = 0.2

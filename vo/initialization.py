@@ -161,7 +161,9 @@ class Initializer:
         if len(self.px_ref) < self.config.init_min_tracked:
             return "restart"
         shift = np.linalg.norm(self.px_cur - self.px_ref, axis=1)
-        if np.mean(shift) < self.config.init_min_disparity_px:
+        if np.mean(shift) < self.config.init_min_disparity_px or self.rotation_only():
+            # a turn alone (a drone tilting as it starts to move) shifts the tracks without
+            # parallax: its homography has no usable translation (walkers: 0.85 m ATE)
             return None
         result = self._two_view()
         return "restart" if result is None else result

@@ -323,7 +323,7 @@ class Tracker:
             if cfg.outlier_rejection:
                 # rescue: outliers within a wider threshold of the inlier pose join them
                 frame.T_c_w, prior = T, frame.T_c_w
-                use = self._errors(frame, ids, uv, levels) * focal < cfg.ransac_rescue_px
+                use = self._errors(frame, ids, uv) * focal < cfg.ransac_rescue_px
                 frame.T_c_w = prior
                 T, H, sigma, err = self._optimize(frame, ids[use], uv[use], levels[use])
             m.T, m.H, m.sigma = T, H, sigma
@@ -331,14 +331,12 @@ class Tracker:
         timings["pose"] = _ms(t0)
         return m
 
-    def _errors(self, frame: Frame, ids: np.ndarray, uv: np.ndarray,
-                levels: np.ndarray) -> np.ndarray:
-        """Level-scaled reprojection errors (normalised plane) of matches at frame's pose."""
+    def _errors(self, frame: Frame, ids: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        """Reprojection errors (normalised plane) of matches at frame's pose."""
         f = self.camera.unproject(uv)
         obs = np.ascontiguousarray(f[:, :2] / f[:, 2:])
-        scale = 1.0 / 2.0 ** levels
         pos = np.ascontiguousarray(self.map.points.pos_w[ids])
-        return np.sqrt(outlier_rejection.squared_errors(pos, obs, scale, frame.T_c_w))
+        return np.sqrt(outlier_rejection.squared_errors(pos, obs, frame.T_c_w))
 
     def _reject_outliers(self, frame: Frame, ids: np.ndarray, uv: np.ndarray,
                          levels: np.ndarray) -> np.ndarray:
@@ -371,12 +369,24 @@ class Tracker:
         frame.n_visible = m.n_visible
         pts = self.map.points
         pts.n_found[ids[inlier]] += 1
+        if cfg.outlier_rejection:
+            self._forget_rejected(ids, inlier)
         missed = np.setdiff1d(m.attempted, ids)
         pts.n_missed[missed] += 1
         # points that keep failing (occluded, badly placed, moving) leave the map
         hopeless = (pts.n_missed[missed] > cfg.point_max_missed) & (
             pts.n_missed[missed] > 2 * pts.n_found[missed])
         pts.delete(missed[hopeless])
+
+    def _forget_rejected(self, ids: np.ndarray, inlier: np.ndarray) -> None:
+        """Map hygiene of outlier rejection (6.8): matched points the pose rejects in
+        point_max_rejected tracked frames in a row have moved or were badly placed; they leave
+        the map instead of being matched (and rejected) again in every frame."""
+        pts = self.map.points
+        pts.n_rejected[ids[inlier]] = 0
+        rejected = ids[~inlier]
+        pts.n_rejected[rejected] += 1
+        pts.delete(rejected[pts.n_rejected[rejected] >= self.config.point_max_rejected])
 
     def _keyframe_due(self, n_seen: int, good: bool) -> bool:
         """Count a tracked frame that sees n_seen map points; True when it becomes a keyframe
