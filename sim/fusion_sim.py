@@ -16,7 +16,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 from scipy.spatial.transform import Rotation
 
-from daemon.config import MavlinkConfig, MountingConfig
+from daemon.config import MountingConfig
 from daemon.fusion.config import FusionConfig
 from daemon.mounting import body_from_camera
 from vo.result import FrameResult
@@ -335,7 +335,3 @@ def fusion_config(**changes: object) -> FusionConfig:
     the factor the real tracker needs (vo_covariance_factor) stays 1."""
     return FusionConfig(**{"vo_covariance_factor": 1.0, **changes})
 
-
-def link_config() -> MavlinkConfig:
-    """A link config whose covariance floor does not hide the filter's own covariance."""
-    return MavlinkConfig(position_std_m=1e-3, angle_std_rad=1e-3)

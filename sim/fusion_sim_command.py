@@ -32,7 +32,6 @@ def run(args: argparse.Namespace) -> int:
                                  seed=args.seed, truth=fusion_sim.survey_flight(legs=args.legs))
     texts: list[str] = []
     estimator = FusionEstimator(fusion_sim.fusion_config(), MountingConfig(),
-                                fusion_sim.link_config(),
                                 report=texts.append)
     timings: list[float] = []
     estimates = fusion_sim.run(flight, estimator, timings)

@@ -33,7 +33,7 @@ def fly(truth: fh.Truth, sensors: fh.SensorOptions, tracker: fh.TrackerOptions =
     mounting = mounting or MountingConfig()
     flight = fh.simulate(sensors, tracker, mounting, seed=seed, truth=truth)
     texts: list[str] = []
-    estimator = FusionEstimator(config or fh.fusion_config(), mounting, fh.link_config(),
+    estimator = FusionEstimator(config or fh.fusion_config(), mounting,
                                 report=texts.append)
     out = fh.run(flight, estimator)
     score = fh.score(flight, out, tracker.start_s)
@@ -150,7 +150,7 @@ def test_a_new_maps_scale_prior_comes_from_the_rangefinder(truth: fh.Truth, pres
                          truth=truth)
     flight.frames = flight.frames[:1]
     cfg = fh.fusion_config()
-    estimator = FusionEstimator(cfg, mounting, fh.link_config())
+    estimator = FusionEstimator(cfg, mounting)
     fh.run(flight, estimator)
     f = estimator.filter
     std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))

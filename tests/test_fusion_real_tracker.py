@@ -46,7 +46,7 @@ def fused():
     messages = autopilot_messages(flight, sensor_streams("ardupilot", flight),
                                   results[-1].t + 1.0)
     clock = [0.0]
-    estimator = FusionEstimator(config.fusion, config.mounting, config.mavlink,
+    estimator = FusionEstimator(config.fusion, config.mounting,
                                 now=lambda: clock[0])
     estimator.set_clock_offset(OFFSET)
     estimates, k = [], 0

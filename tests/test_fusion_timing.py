@@ -18,7 +18,7 @@ def flight() -> fh.Flight:
 
 
 def final_state(flight: fh.Flight, offset: float | None = None) -> tuple:
-    estimator = FusionEstimator(FusionConfig(), MountingConfig(), fh.link_config())
+    estimator = FusionEstimator(FusionConfig(), MountingConfig())
     estimator.set_clock_offset(offset)
     out = fh.run(flight, estimator)
     return estimator, out

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from daemon.config import MavlinkConfig, MountingConfig
+from daemon.config import MountingConfig
 from daemon.estimate import VisionEstimate
 from daemon.fusion import measurements as m
 from daemon.fusion.alignment import AlignmentGate
@@ -73,13 +73,12 @@ def _frame_input(result: object, R_c_b: np.ndarray, segment: int,
 class FusionEstimator:
     """Scale, gravity, heading and velocity for the tracker's poses; see the module doc."""
 
-    def __init__(self, cfg: FusionConfig, mounting: MountingConfig, link: MavlinkConfig,
+    def __init__(self, cfg: FusionConfig, mounting: MountingConfig,
                  report: Callable[[str], None] | None = None,
                  now: Callable[[], float] = time.monotonic):
         cfg.check()
         self.cfg = cfg
         self.R_c_b = body_from_camera(mounting).T
-        self.floor = np.array([link.position_std_m] * 3 + [link.angle_std_rad] * 3) ** 2
         self.now = now
         self.reset_counter = 0
         self.filter = NavFilter(cfg)
@@ -94,6 +93,7 @@ class FusionEstimator:
         self._segment = 0
         self._had_segment = False
         self._realigns_seen = 0
+        self._origin_t: float | None = None  # capture time of the first estimate sent
         self._last_frame_t = float("-inf")
         self._range: tuple[float, float] | None = None  # (t, distance) of the newest reading
         optical_axis = self.R_c_b.T[:, 2]  # in body FRD
@@ -134,12 +134,15 @@ class FusionEstimator:
         if not self.gate.update(f, t_capture):
             return None
         f.published = True
+        if not f.origin_fixed:  # a rewind to this frame or before must keep the fix
+            self._origin_t = t_capture
+            m.fix_origin(f)
+            self.timeline.retake(t_capture, f.snapshot())
         att = self.attitude.at(t_capture)
         return build_estimate(
             f, self.cfg, R_w_b=frame.R_w_b, rot_cov_w=frame.cov[3:, 3:],
             rates=att.rates if att is not None else np.zeros(3), t_capture=t_capture,
-            t_source=float(result.t), state=result.quality, reset_counter=self.reset_counter,
-            floor=self.floor)
+            t_source=float(result.t), state=result.quality, reset_counter=self.reset_counter)
 
     # --- inputs -------------------------------------------------------------------------------
 
@@ -218,6 +221,11 @@ class FusionEstimator:
                   att.R_n_b if att is not None else None)
 
     def _apply_frame(self, t: float, frame: FrameInput) -> None:
+        self._fuse_frame(t, frame)
+        if t == self._origin_t and not self.filter.origin_fixed:
+            m.fix_origin(self.filter)
+
+    def _fuse_frame(self, t: float, frame: FrameInput) -> None:
         f = self.filter
         att = self.attitude.at(t)
         if f.t is None:

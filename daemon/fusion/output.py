@@ -28,13 +28,15 @@ def quality_percent(position_cov: np.ndarray, good_std_m: float) -> int:
 
 def build_estimate(f: NavFilter, cfg: FusionConfig, *, R_w_b: np.ndarray, rot_cov_w: np.ndarray,
                    rates: np.ndarray, t_capture: float, t_source: float, state: str,
-                   reset_counter: int, floor: np.ndarray) -> VisionEstimate | None:
-    """The estimate to send, or None if anything in it is not finite."""
+                   reset_counter: int) -> VisionEstimate | None:
+    """The estimate to send, or None if anything in it is not finite. Its covariance is the
+    filter's, with nothing added: the autopilots apply their own floors (VISO_POS_M_NSE,
+    EKF2_EVP_NOISE), and a floor here would make the covariance dishonest."""
     R_l_b = f.R_nom @ R_w_b
     factor = inflation(cfg, state)
-    pose_cov = np.diag(floor).astype(float)
-    pose_cov[:3, :3] += factor * f.P[POS, POS]
-    pose_cov[3:, 3:] += factor * (f.P[THETA, THETA] + f.R_nom @ rot_cov_w @ f.R_nom.T)
+    pose_cov = np.zeros((6, 6))
+    pose_cov[:3, :3] = factor * f.P[POS, POS]
+    pose_cov[3:, 3:] = factor * (f.P[THETA, THETA] + f.R_nom @ rot_cov_w @ f.R_nom.T)
     # the compass bias is in the heading, not in the position: the local frame is the
     # compass's, like the autopilot's own, so the bias would only weaken vision far from home
     pose_cov[5, 5] += np.radians(cfg.heading_bias_std_deg) ** 2
