@@ -36,7 +36,7 @@ def fly(truth: fh.Truth, sensors: fh.SensorOptions, tracker: fh.TrackerOptions =
     estimator = FusionEstimator(config or fh.fusion_config(), mounting,
                                 report=texts.append)
     out = fh.run(flight, estimator)
-    score = fh.score(flight, out, tracker.start_s)
+    score = fh.score(flight, out)
     print(f"\n{score}\nposition RMSE {score.position_pct:.2f}% of {score.distance_m:.0f} m")
     return score, estimator, out, texts
 
@@ -159,3 +159,18 @@ def test_a_new_maps_scale_prior_comes_from_the_rangefinder(truth: fh.Truth, pres
         assert std == pytest.approx(cfg.range_scale_prior_std)
     else:
         assert std == pytest.approx(cfg.scale_prior_std)
+
+
+def test_level_flight_without_imu_takes_the_scale_from_the_maps_height() -> None:
+    """Tracking starts in level flight at 8 m: without an IMU neither the motion nor the baro
+    tell the scale; the map's height above the ground (its matched points) against the
+    rangefinder's does: one sample per terrain_correlation_m flown, each good to 0.3 m of terrain
+    relief (4 % at 8 m), so the 3 % gate opens after the second, 10 m (3.3 s) on."""
+    tracker = fh.TrackerOptions(start_s=10.0, scene_points=60)
+    sensors = fh.SensorOptions(imu=None)
+    with_scene, *_ = fly(fh.survey_flight(legs=2), sensors, tracker)
+    assert with_scene.first_published_s - tracker.start_s <= 8.0
+    assert with_scene.position_pct <= 3.0 and with_scene.heading_rms_deg <= 2.0
+    cfg = fh.fusion_config(use_scene_height=False)
+    without, *_ = fly(fh.survey_flight(legs=2), sensors, tracker, config=cfg)
+    assert without.published == 0 or without.first_published_s > with_scene.first_published_s

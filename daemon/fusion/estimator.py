@@ -37,7 +37,8 @@ from daemon.mounting import body_from_camera
 log = logging.getLogger("sdvl.fusion")
 INBOX_LIMIT = 20_000
 TRACKED = ("good", "insufficient", "bad")
-RANGE_FRESH_S = 0.5  # a rangefinder reading this close to a new map gives its scale
+RANGE_FRESH_S = 0.5  # a rangefinder reading this close to a frame measures its height
+MIN_SCENE_POINTS = 20  # matched map points for a median height
 
 
 @dataclass(frozen=True)
@@ -49,6 +50,7 @@ class FrameInput:
     cov: np.ndarray  # 6x6 position (tracker units) and rotation (rad), tracker world frame
     quality: str
     segment: int
+    scene_w: np.ndarray | None = None  # matched map points, tracker world (scene.py)
 
 
 def _frame_input(result: object, R_c_b: np.ndarray, segment: int,
@@ -67,7 +69,7 @@ def _frame_input(result: object, R_c_b: np.ndarray, segment: int,
             cov = 0.5 * (given + given.T)
     stretch = np.diag([np.sqrt(position_factor)] * 3 + [1.0] * 3)
     return FrameInput(T[:3, 3].copy(), T[:3, :3] @ R_c_b, stretch @ cov @ stretch,
-                      result.quality, segment)
+                      result.quality, segment, getattr(result, "scene_w", None))
 
 
 class FusionEstimator:
@@ -250,6 +252,7 @@ class FusionEstimator:
                        coarse):
             if np.linalg.norm(f.x[POS] - f.x[ANCHOR]) > self.cfg.reanchor_distance_m:
                 f.reanchor(frame.p_w, self._vo_noise_n(f, frame))
+            self._scene_height(t, frame, R_n_b)
         elif f.rejections["vo"] >= self.cfg.reset_after_rejections and att is not None:
             if f.published:
                 f.realigns += 1  # the autopilot saw this map: reset_counter must change
@@ -257,6 +260,23 @@ class FusionEstimator:
             f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, f.x[LOG_SCALE],
                             float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE])))
             f.rejections["vo"] = 0
+
+    def _scene_height(self, t: float, frame: FrameInput, R_n_b: np.ndarray) -> None:
+        """Fuse the map's height above the ground (its matched points' median depth along the
+        vertical) against the rangefinder's, once per terrain_correlation_m flown."""
+        f, cfg = self.filter, self.cfg
+        points = frame.scene_w
+        if not (cfg.use_scene_height and self._camera_down and f.has_ground
+                and points is not None and len(points) >= MIN_SCENE_POINTS
+                and self._range is not None and abs(t - self._range[0]) <= RANGE_FRESH_S):
+            return
+        if (f.scene_ne is not None
+                and np.linalg.norm(f.x[:2] - f.scene_ne) < cfg.terrain_correlation_m):
+            return
+        height = float(np.median((points - frame.p_w) @ f.R_nom[2]))  # R_nom[2]: N's down
+        if height > 0 and np.isfinite(height) and m.update_scene(
+                f, np.log(height), float((R_n_b @ f.lever)[2])):
+            f.scene_ne = f.x[:2].copy()
 
     def _scale_prior(self, t: float) -> tuple[float, float | None]:
         """ln(scale) and its std for a new map: from the rangefinder's distance when the camera

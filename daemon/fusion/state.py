@@ -83,6 +83,7 @@ class NavFilter:
         self.realigns = 0  # segments restarted because the tracker's poses stopped fitting
         self.published = False  # an estimate of this segment has been sent
         self.origin_fixed = False  # the first estimate ever sent defines the local frame
+        self.scene_ne: np.ndarray | None = None  # where the map's height was last fused
         self.accel: np.ndarray | None = None  # last IMU specific force, held until the next
         self.t_accel = float("-inf")
         self.rejections = {"range": 0, "baro": 0, "vo": 0}
@@ -107,12 +108,14 @@ class NavFilter:
         """Everything needed to continue the filter from here."""
         return (self.t, self.x.copy(), self.P.copy(), self.R_nom.copy(), self.p_w0.copy(),
                 self.has_ground, self.has_baro, dict(self.rejections), self.segment,
-                self.accel, self.t_accel, self.realigns, self.published, self.origin_fixed)
+                self.accel, self.t_accel, self.realigns, self.published, self.origin_fixed,
+                self.scene_ne)
 
     def restore(self, snap: tuple) -> None:
         """Go back to a snapshot."""
         (self.t, x, P, R_nom, p_w0, self.has_ground, self.has_baro, rejections, self.segment,
-         self.accel, self.t_accel, self.realigns, self.published, self.origin_fixed) = snap
+         self.accel, self.t_accel, self.realigns, self.published, self.origin_fixed,
+                self.scene_ne) = snap
         self.ekf.x, self.ekf.P = x.copy(), P.copy()
         self.R_nom, self.p_w0, self.rejections = R_nom.copy(), p_w0.copy(), dict(rejections)
 
@@ -234,8 +237,9 @@ class NavFilter:
             Q[BIAS, BIAS] = np.eye(3) * cfg.accel_bias_walk**2 * dt
         Q[ANCHOR, ANCHOR] = np.eye(3) * (cfg.vo_drift_m_per_sqrt_m**2 * speed
                                          + cfg.vo_drift_m_per_sqrt_s**2) * dt
-        Q[LOG_SCALE, LOG_SCALE] = cfg.scale_walk_per_sqrt_s**2 * dt
-        Q[THETA, THETA] = np.eye(3) * np.radians(cfg.alignment_walk_deg_per_sqrt_s) ** 2 * dt
+        Q[LOG_SCALE, LOG_SCALE] = cfg.scale_walk_per_sqrt_m**2 * speed * dt
+        Q[THETA, THETA] = np.eye(3) * np.radians(cfg.alignment_walk_deg_per_sqrt_m) ** 2 * (
+            speed * dt)
         Q[GROUND, GROUND] = cfg.ground_walk_m_per_sqrt_m**2 * horizontal_speed * dt
         Q[BARO, BARO] = cfg.baro_walk_m_per_sqrt_s**2 * dt
         Q[VO_TILT, VO_TILT] = np.eye(2) * np.radians(cfg.vo_tilt_error_std_deg) ** 2 * (
