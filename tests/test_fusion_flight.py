@@ -174,3 +174,16 @@ def test_level_flight_without_imu_takes_the_scale_from_the_maps_height() -> None
     cfg = fh.fusion_config(use_scene_height=False)
     without, *_ = fly(fh.survey_flight(legs=2), sensors, tracker, config=cfg)
     assert without.published == 0 or without.first_published_s > with_scene.first_published_s
+
+
+def test_first_estimate_defines_the_local_frame(survey) -> None:
+    """The covariance sent is the filter's alone (no floor), zero where the local frame starts,
+    and far from there it holds what the compass bias does to positions (the frame turned)."""
+    published = [e for _, e in survey[2] if e is not None]
+    first = published[0]
+    assert np.trace(first.pose_covariance[:3, :3]) < 1e-4
+    far = max(published, key=lambda e: np.linalg.norm(e.position[:2] - first.position[:2]))
+    d = far.position[:2] - first.position[:2]
+    across = np.array([-d[1], d[0], 0.0]) / np.linalg.norm(d)
+    bias = np.radians(FusionConfig().heading_bias_std_deg)
+    assert across @ far.pose_covariance[:3, :3] @ across >= (bias * np.linalg.norm(d)) ** 2

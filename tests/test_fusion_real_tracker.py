@@ -99,9 +99,11 @@ def test_accuracy_and_never_overconfident(fused) -> None:
     assert nees <= 2.0  # a covariance smaller than the errors would mislead the autopilot
 
 
-@pytest.mark.xfail(reason="issue #7 open: tuned for the older tracker, whose errors were ~10x "
-                          "larger, the filter's covariance is now 4-6x wider than its errors "
-                          "(NEES 0.03 here, 0.12 on survey-down)", strict=True)
+@pytest.mark.xfail(reason="issue #7: NEES 0.39 on this 200-frame climb (0.03 before the noise "
+                          "model was refitted to the current tracker); whole-run lockstep "
+                          "replays: hover-down 0.78/0.62/0.11, survey-down 0.43/0.20/1.76 "
+                          "(seeds 0/1/2): a seed the tracker follows very closely stays "
+                          "over-cautious", strict=True)
 def test_consistent_not_overcautious(fused) -> None:
     _ate, nees, _finite = _errors_and_nees(fused)
     assert nees >= 0.5

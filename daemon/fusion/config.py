@@ -79,8 +79,9 @@ class FusionConfig:
     scale_walk_per_sqrt_m: float = 0.002
     # IMU (HIGHRES_IMU / SCALED_IMU / RAW_IMU): accelerometer noise and bias
     use_imu: bool = True
-    # m/s^2/sqrt(Hz) white noise, includes attitude error times g (0.2 deg at 50 Hz: 0.005)
-    accel_noise: float = 0.02
+    # m/s^2/sqrt(Hz) white noise, includes attitude error times g (0.2 deg at 50 Hz: 0.005);
+    # raise it on a frame whose vibration reaches the accelerometer
+    accel_noise: float = 0.01
     accel_bias_std: float = 0.2  # m/s^2 initial
     accel_bias_walk: float = 0.003  # m/s^2 per sqrt(s)
     imu_timeout_s: float = 0.1

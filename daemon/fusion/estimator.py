@@ -136,7 +136,7 @@ class FusionEstimator:
         if not self.gate.update(f, t_capture):
             return None
         f.published = True
-        if not f.origin_fixed:  # a rewind to this frame or before must keep the fix
+        if f.origin is None:  # a rewind to this frame or before must keep the fix
             self._origin_t = t_capture
             m.fix_origin(f)
             self.timeline.retake(t_capture, f.snapshot())
@@ -224,7 +224,7 @@ class FusionEstimator:
 
     def _apply_frame(self, t: float, frame: FrameInput) -> None:
         self._fuse_frame(t, frame)
-        if t == self._origin_t and not self.filter.origin_fixed:
+        if t == self._origin_t and self.filter.origin is None:
             m.fix_origin(self.filter)
 
     def _fuse_frame(self, t: float, frame: FrameInput) -> None:

@@ -152,7 +152,7 @@ def fix_origin(f: NavFilter) -> None:
     H = np.zeros((3, DIM))
     H[:, POS] = np.eye(3)
     gated_update(f, f.x[POS].copy(), f.x[POS].copy(), H, np.eye(3) * ORIGIN_VAR, np.inf)
-    f.origin_fixed = True
+    f.origin = f.x[POS].copy()
 
 
 def _scalar_update(f: NavFilter, which: str, z: float, index: int, std: float) -> bool:

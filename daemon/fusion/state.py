@@ -82,7 +82,8 @@ class NavFilter:
         self.segment = -1  # id of the map segment the anchor belongs to
         self.realigns = 0  # segments restarted because the tracker's poses stopped fitting
         self.published = False  # an estimate of this segment has been sent
-        self.origin_fixed = False  # the first estimate ever sent defines the local frame
+        # where the first estimate ever sent put the vehicle: it defines the local frame
+        self.origin: np.ndarray | None = None
         self.scene_ne: np.ndarray | None = None  # where the map's height was last fused
         self.accel: np.ndarray | None = None  # last IMU specific force, held until the next
         self.t_accel = float("-inf")
@@ -108,13 +109,13 @@ class NavFilter:
         """Everything needed to continue the filter from here."""
         return (self.t, self.x.copy(), self.P.copy(), self.R_nom.copy(), self.p_w0.copy(),
                 self.has_ground, self.has_baro, dict(self.rejections), self.segment,
-                self.accel, self.t_accel, self.realigns, self.published, self.origin_fixed,
+                self.accel, self.t_accel, self.realigns, self.published, self.origin,
                 self.scene_ne)
 
     def restore(self, snap: tuple) -> None:
         """Go back to a snapshot."""
         (self.t, x, P, R_nom, p_w0, self.has_ground, self.has_baro, rejections, self.segment,
-         self.accel, self.t_accel, self.realigns, self.published, self.origin_fixed,
+         self.accel, self.t_accel, self.realigns, self.published, self.origin,
                 self.scene_ne) = snap
         self.ekf.x, self.ekf.P = x.copy(), P.copy()
         self.R_nom, self.p_w0, self.rejections = R_nom.copy(), p_w0.copy(), dict(rejections)
