@@ -238,7 +238,8 @@ class NavFilter:
             Q[BIAS, BIAS] = np.eye(3) * cfg.accel_bias_walk**2 * dt
         Q[ANCHOR, ANCHOR] = np.eye(3) * (cfg.vo_drift_m_per_sqrt_m**2 * speed
                                          + cfg.vo_drift_m_per_sqrt_s**2) * dt
-        Q[LOG_SCALE, LOG_SCALE] = cfg.scale_walk_per_sqrt_m**2 * speed * dt
+        Q[LOG_SCALE, LOG_SCALE] = (cfg.scale_walk_per_sqrt_m**2 * horizontal_speed
+                                   + cfg.scale_walk_climb_per_sqrt_m**2 * abs(self.x[5])) * dt
         Q[THETA, THETA] = np.eye(3) * np.radians(cfg.alignment_walk_deg_per_sqrt_m) ** 2 * (
             speed * dt)
         Q[GROUND, GROUND] = cfg.ground_walk_m_per_sqrt_m**2 * horizontal_speed * dt
