@@ -23,10 +23,6 @@ from sim.sequence import ImuSamples
 from sim.trajectory import Trajectory
 
 MAX_LEAD_S = 0.1
-# sensor ranges of a flight controller's IMU (16 g, ~1700 deg/s); SCALED_IMU's int16 mG/mrad
-# fields overflow beyond 32 g and 32 rad/s
-ACCEL_LIMIT = 16 * 9.80665
-GYRO_LIMIT = 30.0
 PAD_S = 1.0  # the trajectory is held this long at both ends, so its derivatives stay defined
 VISION = ("ODOMETRY", "VISION_POSITION_ESTIMATE", "VISION_SPEED_ESTIMATE")
 
@@ -70,16 +66,14 @@ class ReplayVehicle:
         return min(max(t, self.t_first), self.t_last)
 
     def state(self, _uptime: float) -> dict:
-        """Vehicle.state at the current sequence time (the uptime argument is ignored), with
-        the IMU readings saturated like a real sensor's."""
+        """Vehicle.state at the current sequence time (the uptime argument is ignored);
+        sensor_message saturates the IMU readings like a real sensor's."""
         t = self.sequence_time()
         state = self.inner.state(t - self.inner.t0)
         if self.imu is not None:
             state["specific_force"] = _interp_rows(t, self.imu.t, self.imu.accel)
             if self.imu.gyro is not None:
                 state["rates"] = _interp_rows(t, self.imu.t, self.imu.gyro)
-        state["specific_force"] = np.clip(state["specific_force"], -ACCEL_LIMIT, ACCEL_LIMIT)
-        state["rates"] = np.clip(state["rates"], -GYRO_LIMIT, GYRO_LIMIT)
         return state
 
 
