@@ -322,7 +322,7 @@ class Score:
 
 def score(flight: Flight, estimates: list) -> Score:
     """Compare published estimates with the truth from the first one on (it defines the local
-    frame's origin, daemon.fusion.measurements.fix_origin): no other alignment."""
+    frame's origin, daemon.fusion.state.NavFilter.fix_origin): no other alignment."""
     truth = flight.truth
     published = [(t_capture, e) for t_capture, e in estimates if e is not None]
     if published:

@@ -85,7 +85,7 @@ class FusionConfig:
     use_imu: bool = True
     # m/s^2/sqrt(Hz) white noise, includes attitude error times g (0.2 deg at 50 Hz: 0.005);
     # raise it on a frame whose vibration reaches the accelerometer
-    accel_noise: float = 0.01
+    accel_noise: float = 0.02
     accel_bias_std: float = 0.2  # m/s^2 initial
     accel_bias_walk: float = 0.003  # m/s^2 per sqrt(s)
     imu_timeout_s: float = 0.1

@@ -138,7 +138,7 @@ class FusionEstimator:
         f.published = True
         if f.origin is None:  # a rewind to this frame or before must keep the fix
             self._origin_t = t_capture
-            m.fix_origin(f)
+            f.fix_origin()
             self.timeline.retake(t_capture, f.snapshot())
         att = self.attitude.at(t_capture)
         return build_estimate(
@@ -225,7 +225,7 @@ class FusionEstimator:
     def _apply_frame(self, t: float, frame: FrameInput) -> None:
         self._fuse_frame(t, frame)
         if t == self._origin_t and self.filter.origin is None:
-            m.fix_origin(self.filter)
+            self.filter.fix_origin()
 
     def _fuse_frame(self, t: float, frame: FrameInput) -> None:
         f = self.filter

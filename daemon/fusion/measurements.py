@@ -23,8 +23,6 @@ from daemon.fusion.state import (
     skew,
 )
 
-ORIGIN_VAR = 1e-6  # m^2: what is left of the position variance where the local frame starts
-
 
 def gated_update(f: NavFilter, z: np.ndarray, h: np.ndarray, H: np.ndarray, R: np.ndarray,
                  gate: float, frozen: tuple[int, slice] | None = None) -> bool:
@@ -141,18 +139,6 @@ def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarra
     fold_alignment(f)
     f.rejections["vo"] = 0 if ok else f.rejections["vo"] + 1
     return ok
-
-
-def fix_origin(f: NavFilter) -> None:
-    """Condition the filter on its current position (a noiseless pseudo-measurement of itself,
-    so the estimate does not move): the first estimate the autopilot receives defines where the
-    local frame is, and the position error accumulated before it (dead reckoning while the scale
-    was still unknown) is no error of that frame. Left in, it stayed in the published
-    covariance for the whole flight (a 0.5-1 m north std on survey-down, errors a tenth of it)."""
-    H = np.zeros((3, DIM))
-    H[:, POS] = np.eye(3)
-    gated_update(f, f.x[POS].copy(), f.x[POS].copy(), H, np.eye(3) * ORIGIN_VAR, np.inf)
-    f.origin = f.x[POS].copy()
 
 
 def _scalar_update(f: NavFilter, which: str, z: float, index: int, std: float) -> bool:

@@ -37,6 +37,7 @@ VO_TILT = slice(18, 20)  # about N's north and east axes: the tracker's heading 
 DIM = 20  # off against its position over a flat scene below
 GRAVITY_N = np.array([0.0, 0.0, 9.80665])
 HEADING = 15  # theta's z component: rotation about N's down axis
+ORIGIN_VAR = 1e-6  # m^2: what is left of the position variance where the local frame starts
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -181,6 +182,23 @@ class NavFilter:
         P[ANCHOR, ANCHOR] = JP @ J.T + cov_n
         x[ANCHOR] = x[ANCHOR] + v
         self.p_w0 = np.asarray(p_w, float).copy()
+
+    def fix_origin(self) -> None:
+        """The first estimate the autopilot receives defines where the local frame is: the
+        position error accumulated before it (dead reckoning while the scale was still unknown)
+        is no error of that frame. Moving the frame by the unknown error moves every state that
+        lives in it (position, the map's anchor, ground and baro levels) and tells nothing about
+        the others. Left in, it stayed in the published covariance for the whole flight (a
+        0.5-1 m north std on survey-down, errors a tenth of it); conditioning on the position
+        instead would have claimed the scale known (its error made that position error)."""
+        J = np.eye(DIM)
+        J[POS, POS] = 0.0
+        J[ANCHOR, POS] = -np.eye(3)
+        J[GROUND, 2] = J[BARO, 2] = -1.0
+        P = J @ self.ekf.P @ J.T
+        P[POS, POS] += np.eye(3) * ORIGIN_VAR
+        self.ekf.P = 0.5 * (P + P.T)
+        self.origin = self.x[POS].copy()
 
     def reference(self, which: str, value: float, std: float) -> None:
         """(Re)start the ground level ("range") or baro offset ("baro") so that the measured
