@@ -62,18 +62,21 @@ def fit_camera(camera: CameraModel, width: int, height: int) -> CameraModel:
 
 
 def tracker_factory(config: Config, camera: CameraModel) -> Callable[[Frame], object]:
-    """Builds the tracker on the first frame; tracker options are validated now."""
+    """Builds the tracker on the first frame (its results carry the matched map points for
+    fusion); tracker options are validated now."""
     try:
         from vo.config import TrackerConfig
         from vo.tracker import Tracker
     except ImportError as exc:
         raise InputError(f"the tracker (vo) is not installed: {exc}") from None
+    from daemon.fusion.scene import SceneTracker
+
     tracker_config = TrackerConfig.from_dict(config.tracker)
 
     def make(frame: Frame) -> object:
         height, width = frame.image.shape[:2]
-        return Tracker(fit_camera(camera, width, height), tracker_config,
-                       threaded=config.service.mapping_thread)
+        return SceneTracker(Tracker(fit_camera(camera, width, height), tracker_config,
+                                    threaded=config.service.mapping_thread))
 
     return make
 

@@ -101,7 +101,7 @@ class Service:
         from daemon.fusion.estimator import FusionEstimator
 
         return FusionEstimator(
-            self.cfg.fusion, self.cfg.mounting, self.cfg.mavlink,
+            self.cfg.fusion, self.cfg.mounting,
             report=lambda text: self._from_thread(self.texts.report, text, time.monotonic()))
 
     # --- lifecycle -------------------------------------------------------------------------

@@ -16,8 +16,9 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 from scipy.spatial.transform import Rotation
 
-from daemon.config import MavlinkConfig, MountingConfig
+from daemon.config import MountingConfig
 from daemon.fusion.config import FusionConfig
+from daemon.fusion.scene import SceneResult
 from daemon.mounting import body_from_camera
 from vo.result import FrameResult
 
@@ -128,6 +129,8 @@ class TrackerOptions:
     lever: np.ndarray = field(default_factory=lambda: np.zeros(3))  # camera in body FRD, m
     cov_std_m: float = 0.02
     rot_noise_deg: float = 0.2
+    scene_points: int = 0  # map points on the ground matched per frame (daemon scene.py)
+    scene_noise: float = 0.02  # their depth noise, fraction of the height
     weak: tuple = ()  # (t0, t1) windows of 'insufficient' tracking
     lost: tuple = ()  # (t0, t1) windows without pose; a new map starts after each
     delay_s: float = 0.03  # capture -> result
@@ -241,8 +244,23 @@ def tracker_results(truth: Truth, opt: TrackerOptions, mounting: MountingConfig,
         cov = np.diag([(scale * opt.cov_std_m * (3.0 if weak else 1.0)) ** 2] * 3
                       + [np.radians(opt.rot_noise_deg) ** 2] * 3)
         result = FrameResult(t, T, "insufficient" if weak else "good", cov, new_segment=new)
+        if opt.scene_points:
+            ground = _ground_points(truth.p[i] + truth.R[i] @ opt.lever, opt, rng)
+            scene = seg["p_w"] + scale * (ground - last_p) @ R_w_n.T
+            result = SceneResult(**vars(result), scene_w=scene)
         out.append((t_capture + opt.delay_s, result, t_capture))
     return out
+
+
+def _ground_points(camera_n: np.ndarray, opt: TrackerOptions,
+                   rng: np.random.Generator) -> np.ndarray:
+    """Points of the flat ground (N's z = CAMERA_HEIGHT) in a downward camera's view, in N,
+    their heights off by the map's depth noise."""
+    height = CAMERA_HEIGHT - camera_n[2]
+    points = np.empty((opt.scene_points, 3))
+    points[:, :2] = camera_n[:2] + rng.uniform(-0.6, 0.6, (opt.scene_points, 2)) * height
+    points[:, 2] = CAMERA_HEIGHT + rng.normal(0, opt.scene_noise * height, opt.scene_points)
+    return points
 
 
 def simulate(sensors: SensorOptions | None = None, tracker: TrackerOptions | None = None,
@@ -302,15 +320,16 @@ class Score:
                 "position_pct": self.position_pct}
 
 
-def score(flight: Flight, estimates: list, start_s: float) -> Score:
-    """Compare published estimates with the truth; the local origin is the truth position
-    at `start_s` (the first tracked frame): no other alignment."""
+def score(flight: Flight, estimates: list) -> Score:
+    """Compare published estimates with the truth from the first one on (it defines the local
+    frame's origin, daemon.fusion.state.NavFilter.fix_origin): no other alignment."""
     truth = flight.truth
-    origin = truth.p[truth.at(start_s)]
+    published = [(t_capture, e) for t_capture, e in estimates if e is not None]
+    if published:
+        first_t, first = published[0]
+        origin = truth.p[truth.at(first_t - BOOT_OFFSET)] - first.position
     pos_err, head_err, vel_err, nees, nees_v, times = [], [], [], [], [], []
-    for t_capture, e in estimates:
-        if e is None:
-            continue
+    for t_capture, e in published:
         t = t_capture - BOOT_OFFSET
         i = truth.at(t)
         err = e.position - (truth.p[i] - origin)
@@ -335,7 +354,3 @@ def fusion_config(**changes: object) -> FusionConfig:
     the factor the real tracker needs (vo_covariance_factor) stays 1."""
     return FusionConfig(**{"vo_covariance_factor": 1.0, **changes})
 
-
-def link_config() -> MavlinkConfig:
-    """A link config whose covariance floor does not hide the filter's own covariance."""
-    return MavlinkConfig(position_std_m=1e-3, angle_std_rad=1e-3)

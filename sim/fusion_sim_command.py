@@ -32,11 +32,10 @@ def run(args: argparse.Namespace) -> int:
                                  seed=args.seed, truth=fusion_sim.survey_flight(legs=args.legs))
     texts: list[str] = []
     estimator = FusionEstimator(fusion_sim.fusion_config(), MountingConfig(),
-                                fusion_sim.link_config(),
                                 report=texts.append)
     timings: list[float] = []
     estimates = fusion_sim.run(flight, estimator, timings)
-    score = fusion_sim.score(flight, estimates, tracker.start_s)
+    score = fusion_sim.score(flight, estimates)
     ms = 1000 * np.array(timings)
     report = {**score.to_dict(), "frames": len(estimates), "reset_counter": estimator.reset_counter,
               "replays": estimator.timeline.replays, "frame_ms_median": float(np.median(ms)),

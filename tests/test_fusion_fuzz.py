@@ -67,7 +67,7 @@ def test_fuzzed_messages_and_frames_never_give_nan(data: st.DataObject) -> None:
         k = data.draw(st.integers(0, len(frames) - 1))
         ready, result, t_capture = frames[k]
         frames[k] = (ready, corrupt_frame(result, data.draw(st.integers(0, 4))), t_capture)
-    estimator = FusionEstimator(fh.fusion_config(), MountingConfig(), fh.link_config())
+    estimator = FusionEstimator(fh.fusion_config(), MountingConfig())
     out = fh.run(fh.Flight(FLIGHT.truth, messages, frames), estimator)
     assert all(finite(e) for _, e in out if e is not None)
 
@@ -83,10 +83,10 @@ def test_spikes_and_gaps_do_not_move_the_estimate() -> None:
             msg.current_distance = 30  # a bird under the rangefinder
         if not 12.0 <= arrival - fh.BOOT_OFFSET < 13.0:  # a one-second link gap
             messages.append((arrival, msg))
-    estimator = FusionEstimator(fh.fusion_config(), MountingConfig(), fh.link_config())
+    estimator = FusionEstimator(fh.fusion_config(), MountingConfig())
     out = fh.run(fh.Flight(FLIGHT.truth, messages, FLIGHT.frames), estimator)
-    clean = fh.run(FLIGHT, FusionEstimator(fh.fusion_config(), MountingConfig(), fh.link_config()))
-    spiked, reference = fh.score(FLIGHT, out, 1.5), fh.score(FLIGHT, clean, 1.5)
+    clean = fh.run(FLIGHT, FusionEstimator(fh.fusion_config(), MountingConfig()))
+    spiked, reference = fh.score(FLIGHT, out), fh.score(FLIGHT, clean)
     print(f"\nspiked {spiked}\nclean {reference}")
     assert spiked.published > 0.8 * reference.published
     assert spiked.position_rmse_m < reference.position_rmse_m + 0.1
@@ -97,7 +97,7 @@ def test_without_attitude_nothing_is_published(kind: str) -> None:
     messages = [] if kind == "nothing" else [
         (a, m) for a, m in FLIGHT.messages if m.get_type() != "ATTITUDE"]
     texts: list[str] = []
-    estimator = FusionEstimator(fh.fusion_config(), MountingConfig(), fh.link_config(),
+    estimator = FusionEstimator(fh.fusion_config(), MountingConfig(),
                                 report=texts.append)
     out = fh.run(fh.Flight(FLIGHT.truth, messages, FLIGHT.frames), estimator)
     assert all(e is None for _, e in out)

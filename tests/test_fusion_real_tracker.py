@@ -46,7 +46,7 @@ def fused():
     messages = autopilot_messages(flight, sensor_streams("ardupilot", flight),
                                   results[-1].t + 1.0)
     clock = [0.0]
-    estimator = FusionEstimator(config.fusion, config.mounting, config.mavlink,
+    estimator = FusionEstimator(config.fusion, config.mounting,
                                 now=lambda: clock[0])
     estimator.set_clock_offset(OFFSET)
     estimates, k = [], 0
@@ -99,9 +99,11 @@ def test_accuracy_and_never_overconfident(fused) -> None:
     assert nees <= 2.0  # a covariance smaller than the errors would mislead the autopilot
 
 
-@pytest.mark.xfail(reason="issue #7 open: tuned for the older tracker, whose errors were ~10x "
-                          "larger, the filter's covariance is now 4-6x wider than its errors "
-                          "(NEES 0.03 here, 0.12 on survey-down)", strict=True)
+@pytest.mark.xfail(reason="issue #7: NEES 0.09 on this 200-frame climb (ATE 0.013 m; 0.03 "
+                          "before); whole-run lockstep replays, all sensors, seeds 0/1/2: "
+                          "hover-down 0.23/0.48/0.04, survey-down 0.38/0.13/1.23: the scale's "
+                          "and the map drift's noise model is cautious for seeds the tracker "
+                          "follows closely", strict=True)
 def test_consistent_not_overcautious(fused) -> None:
     _ate, nees, _finite = _errors_and_nees(fused)
     assert nees >= 0.5

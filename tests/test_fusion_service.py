@@ -21,7 +21,7 @@ EXPECTED = {"ardupilot": {"imu": "SCALED_IMU", "baro": "SCALED_PRESSURE"},
 def test_service_feeds_the_autopilot_streams_to_fusion(flavour: str) -> None:
     with SimAutopilot(SimOptions(flavour=flavour, heartbeat_hz=5)) as sim:
         cfg = service_config(sim.url, mounting={"preset": "down"})
-        estimator = FusionEstimator(FusionConfig(), cfg.mounting, cfg.mavlink)
+        estimator = FusionEstimator(FusionConfig(), cfg.mounting)
         run = RunningService(cfg, estimator=estimator)
         try:
             assert wait_for(lambda: estimator.filter.t is not None, timeout=5.0)

@@ -48,14 +48,16 @@ class FusionConfig:
     coarse_scale_std: float = 0.2
     coarse_inflation: float = 10.0
     # tracker pose: floor of the position noise (metres) and inflation per tracking quality
-    vo_position_std_m: float = 0.02
+    vo_position_std_m: float = 0.005
     vo_rotation_std_deg: float = 0.5
-    # the tracker's own position covariance is too small: its errors are correlated with its
-    # rotation errors (tilt vs translation over a flat scene) and wander over ~1 s; variance factor
-    vo_covariance_factor: float = 6.0
+    # variance factor on the tracker's position covariance: it matches its frame-to-frame noise
+    # (hover-down: reported 15/14/4 mm, frame differences 9/6/1.5 mm; survey-down 27/27/12 vs
+    # 21/12/7 mm); what it leaves out, the slow tilt error and drift, is modelled below
+    vo_covariance_factor: float = 1.0
     # its slowly wandering tilt error and the position error that goes with it (state.py): std
-    # and correlation time; the synthetic downward flights show 1.3-2.9 deg rms over ~1 s
-    vo_tilt_error_std_deg: float = 1.5
+    # and correlation time; the tracker on the synthetic downward flights shows 0.2-0.5 deg rms
+    # with an autocorrelation of 0.4 after 1 s (the older tracker: 1.3-2.9 deg)
+    vo_tilt_error_std_deg: float = 0.5
     vo_error_time_s: float = 1.0
     vo_drift_m_per_sqrt_m: float = 0.01  # VO position random walk per sqrt(metre travelled)
     vo_drift_m_per_sqrt_s: float = 0.0  # VO position random walk per sqrt(second), also at rest
@@ -63,17 +65,29 @@ class FusionConfig:
     inflate_insufficient: float = 4.0  # variance factor
     inflate_bad: float = 25.0
     # autopilot attitude (ATTITUDE): roll/pitch and compass heading noise
-    attitude_std_deg: float = 1.0
+    attitude_std_deg: float = 0.5
     heading_std_deg: float = 3.0
     heading_bias_std_deg: float = 1.0  # compass bias: averaging cannot remove it
     attitude_timeout_s: float = 0.5
-    alignment_walk_deg_per_sqrt_s: float = 0.2  # VO rotation drift against the autopilot's
-    scale_walk_per_sqrt_s: float = 0.005  # ln(scale) random walk (scale drift of the map)
+    # VO rotation drift against the autopilot's, per sqrt(metre flown) like the scale's
+    alignment_walk_deg_per_sqrt_m: float = 0.1
+    # ln(scale) random walk per sqrt(metre flown): the map's scale drifts as it grows over new
+    # ground, not while the camera hovers over the same points (per second, it made the scale
+    # times the height climbed the largest term of a hover's covariance: 0.05 m against errors of
+    # 0.01 m on hover-down); survey-down's map keeps its scale within 0.002 per
+    # sqrt(metre) (Sim(3) fits of 12 m windows)
+    scale_walk_per_sqrt_m: float = 0.002
+    # per sqrt(metre climbed or descended): the scene depth changes and new points are
+    # triangulated at it (hover-down's map: 4 % between 1.5 and 6 m, 12 m windows of survey-down
+    # 0.2 %); held to 0.002 the IMU and baro fixed the climb's scale 6 % off, sure to 0.7 %
+    scale_walk_climb_per_sqrt_m: float = 0.02
     # IMU (HIGHRES_IMU / SCALED_IMU / RAW_IMU): accelerometer noise and bias
     use_imu: bool = True
-    accel_noise: float = 0.1  # m/s^2/sqrt(Hz) white noise, includes attitude error times g
+    # m/s^2/sqrt(Hz) white noise, includes attitude error times g (0.2 deg at 50 Hz: 0.005);
+    # raise it on a frame whose vibration reaches the accelerometer
+    accel_noise: float = 0.02
     accel_bias_std: float = 0.2  # m/s^2 initial
-    accel_bias_walk: float = 0.01  # m/s^2 per sqrt(s)
+    accel_bias_walk: float = 0.003  # m/s^2 per sqrt(s)
     imu_timeout_s: float = 0.1
     # without IMU: constant velocity with this white acceleration noise (m/s^2/sqrt(Hz)); the
     # tracker corrects manoeuvres at frame rate, a small value keeps its map from wandering
@@ -84,6 +98,15 @@ class FusionConfig:
     range_std_fraction: float = 0.01
     range_max_tilt_deg: float = 30.0
     ground_walk_m_per_sqrt_m: float = 0.05  # terrain height change per sqrt(metre flown)
+    # the map's own height above the ground (median depth of the matched points below the
+    # camera, scene.py) against the rangefinder's: the scale in level flight without an IMU.
+    # The ground the map sees differs from the one under the rangefinder by terrain_relief_m
+    # (std), a new sample every terrain_correlation_m flown; the median's own noise is
+    # scene_height_std_fraction of the height
+    use_scene_height: bool = True
+    terrain_relief_m: float = 0.3
+    terrain_correlation_m: float = 10.0
+    scene_height_std_fraction: float = 0.02
     # barometer (SCALED_PRESSURE, HIGHRES_IMU pressure or PX4 ALTITUDE)
     use_baro: bool = True
     baro_std_m: float = 0.3
@@ -111,6 +134,7 @@ class FusionConfig:
                     "attitude_std_deg", "heading_std_deg",
                     "attitude_timeout_s", "accel_noise", "accel_bias_std", "imu_timeout_s",
                     "motion_accel_std", "range_std_m", "baro_std_m", "gate_chi2_1dof",
+                    "terrain_relief_m", "terrain_correlation_m", "scene_height_std_fraction",
                     "gate_chi2_3dof", "gate_chi2_6dof", "history_s", "clock_offset_window_s",
                     "quality_good_std_m", "rate_std_rad_s")
         for key in positive:
@@ -118,8 +142,9 @@ class FusionConfig:
                 raise InputError(f"fusion.{key} must be > 0", path)
         non_negative = ("min_aligned_s", "heading_bias_std_deg", "vo_drift_m_per_sqrt_m",
                         "vo_drift_m_per_sqrt_s",
-                        "alignment_walk_deg_per_sqrt_s",
-                        "scale_walk_per_sqrt_s", "accel_bias_walk", "range_std_fraction",
+                        "alignment_walk_deg_per_sqrt_m",
+                        "scale_walk_per_sqrt_m", "scale_walk_climb_per_sqrt_m",
+                        "accel_bias_walk", "range_std_fraction",
                         "ground_walk_m_per_sqrt_m", "baro_walk_m_per_sqrt_s")
         for key in non_negative:
             if not getattr(self, key) >= 0:

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from daemon.config import MavlinkConfig, MountingConfig
+from daemon.config import MountingConfig
 from daemon.estimate import VisionEstimate
 from daemon.fusion import measurements as m
 from daemon.fusion.alignment import AlignmentGate
@@ -37,7 +37,8 @@ from daemon.mounting import body_from_camera
 log = logging.getLogger("sdvl.fusion")
 INBOX_LIMIT = 20_000
 TRACKED = ("good", "insufficient", "bad")
-RANGE_FRESH_S = 0.5  # a rangefinder reading this close to a new map gives its scale
+RANGE_FRESH_S = 0.5  # a rangefinder reading this close to a frame measures its height
+MIN_SCENE_POINTS = 20  # matched map points for a median height
 
 
 @dataclass(frozen=True)
@@ -49,6 +50,7 @@ class FrameInput:
     cov: np.ndarray  # 6x6 position (tracker units) and rotation (rad), tracker world frame
     quality: str
     segment: int
+    scene_w: np.ndarray | None = None  # matched map points, tracker world (scene.py)
 
 
 def _frame_input(result: object, R_c_b: np.ndarray, segment: int,
@@ -67,19 +69,18 @@ def _frame_input(result: object, R_c_b: np.ndarray, segment: int,
             cov = 0.5 * (given + given.T)
     stretch = np.diag([np.sqrt(position_factor)] * 3 + [1.0] * 3)
     return FrameInput(T[:3, 3].copy(), T[:3, :3] @ R_c_b, stretch @ cov @ stretch,
-                      result.quality, segment)
+                      result.quality, segment, getattr(result, "scene_w", None))
 
 
 class FusionEstimator:
     """Scale, gravity, heading and velocity for the tracker's poses; see the module doc."""
 
-    def __init__(self, cfg: FusionConfig, mounting: MountingConfig, link: MavlinkConfig,
+    def __init__(self, cfg: FusionConfig, mounting: MountingConfig,
                  report: Callable[[str], None] | None = None,
                  now: Callable[[], float] = time.monotonic):
         cfg.check()
         self.cfg = cfg
         self.R_c_b = body_from_camera(mounting).T
-        self.floor = np.array([link.position_std_m] * 3 + [link.angle_std_rad] * 3) ** 2
         self.now = now
         self.reset_counter = 0
         self.filter = NavFilter(cfg)
@@ -94,6 +95,7 @@ class FusionEstimator:
         self._segment = 0
         self._had_segment = False
         self._realigns_seen = 0
+        self._origin_t: float | None = None  # capture time of the first estimate sent
         self._last_frame_t = float("-inf")
         self._range: tuple[float, float] | None = None  # (t, distance) of the newest reading
         optical_axis = self.R_c_b.T[:, 2]  # in body FRD
@@ -134,12 +136,15 @@ class FusionEstimator:
         if not self.gate.update(f, t_capture):
             return None
         f.published = True
+        if f.origin is None:  # a rewind to this frame or before must keep the fix
+            self._origin_t = t_capture
+            f.fix_origin()
+            self.timeline.retake(t_capture, f.snapshot())
         att = self.attitude.at(t_capture)
         return build_estimate(
             f, self.cfg, R_w_b=frame.R_w_b, rot_cov_w=frame.cov[3:, 3:],
             rates=att.rates if att is not None else np.zeros(3), t_capture=t_capture,
-            t_source=float(result.t), state=result.quality, reset_counter=self.reset_counter,
-            floor=self.floor)
+            t_source=float(result.t), state=result.quality, reset_counter=self.reset_counter)
 
     # --- inputs -------------------------------------------------------------------------------
 
@@ -218,6 +223,11 @@ class FusionEstimator:
                   att.R_n_b if att is not None else None)
 
     def _apply_frame(self, t: float, frame: FrameInput) -> None:
+        self._fuse_frame(t, frame)
+        if t == self._origin_t and self.filter.origin is None:
+            self.filter.fix_origin()
+
+    def _fuse_frame(self, t: float, frame: FrameInput) -> None:
         f = self.filter
         att = self.attitude.at(t)
         if f.t is None:
@@ -242,6 +252,7 @@ class FusionEstimator:
                        coarse):
             if np.linalg.norm(f.x[POS] - f.x[ANCHOR]) > self.cfg.reanchor_distance_m:
                 f.reanchor(frame.p_w, self._vo_noise_n(f, frame))
+            self._scene_height(t, frame, R_n_b)
         elif f.rejections["vo"] >= self.cfg.reset_after_rejections and att is not None:
             if f.published:
                 f.realigns += 1  # the autopilot saw this map: reset_counter must change
@@ -249,6 +260,23 @@ class FusionEstimator:
             f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, f.x[LOG_SCALE],
                             float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE])))
             f.rejections["vo"] = 0
+
+    def _scene_height(self, t: float, frame: FrameInput, R_n_b: np.ndarray) -> None:
+        """Fuse the map's height above the ground (its matched points' median depth along the
+        vertical) against the rangefinder's, once per terrain_correlation_m flown."""
+        f, cfg = self.filter, self.cfg
+        points = frame.scene_w
+        if not (cfg.use_scene_height and self._camera_down and f.has_ground
+                and points is not None and len(points) >= MIN_SCENE_POINTS
+                and self._range is not None and abs(t - self._range[0]) <= RANGE_FRESH_S):
+            return
+        if (f.scene_ne is not None
+                and np.linalg.norm(f.x[:2] - f.scene_ne) < cfg.terrain_correlation_m):
+            return
+        height = float(np.median((points - frame.p_w) @ f.R_nom[2]))  # R_nom[2]: N's down
+        if height > 0 and np.isfinite(height) and m.update_scene(
+                f, np.log(height), float((R_n_b @ f.lever)[2])):
+            f.scene_ne = f.x[:2].copy()
 
     def _scale_prior(self, t: float) -> tuple[float, float | None]:
         """ln(scale) and its std for a new map: from the rangefinder's distance when the camera

@@ -166,6 +166,24 @@ def update_range(f: NavFilter, distance: float, R_n_b: np.ndarray) -> bool:
     return _scalar_update(f, "range", distance * cos_tilt, GROUND, std)
 
 
+def update_scene(f: NavFilter, log_height_units: float, lever_down: float) -> bool:
+    """ln of the camera's height above the ground in map units (scene.py) = ln of its height
+    above the rangefinder's ground level in metres - ln(scale); the ground the map sees differs
+    from the rangefinder's by the terrain relief."""
+    cfg = f.cfg
+    height = float(f.x[GROUND] - f.x[2] - lever_down)
+    if not height > cfg.range_std_m:
+        return False
+    std = float(np.hypot(cfg.terrain_relief_m, cfg.scene_height_std_fraction * height)) / height
+    H = np.zeros((1, DIM))
+    H[0, LOG_SCALE] = -1.0
+    H[0, GROUND] = 1.0 / height
+    H[0, 2] = -1.0 / height
+    h = np.array([np.log(height) - f.x[LOG_SCALE]])
+    return gated_update(f, np.array([log_height_units]), h, H, np.array([[std**2]]),
+                        cfg.gate_chi2_1dof)
+
+
 def update_baro(f: NavFilter, altitude: float) -> bool:
     """Barometric altitude = baro offset - p_z."""
     return _scalar_update(f, "baro", altitude, BARO, f.cfg.baro_std_m)

@@ -37,6 +37,7 @@ VO_TILT = slice(18, 20)  # about N's north and east axes: the tracker's heading 
 DIM = 20  # off against its position over a flat scene below
 GRAVITY_N = np.array([0.0, 0.0, 9.80665])
 HEADING = 15  # theta's z component: rotation about N's down axis
+ORIGIN_VAR = 1e-6  # m^2: what is left of the position variance where the local frame starts
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -82,6 +83,9 @@ class NavFilter:
         self.segment = -1  # id of the map segment the anchor belongs to
         self.realigns = 0  # segments restarted because the tracker's poses stopped fitting
         self.published = False  # an estimate of this segment has been sent
+        # where the first estimate ever sent put the vehicle: it defines the local frame
+        self.origin: np.ndarray | None = None
+        self.scene_ne: np.ndarray | None = None  # where the map's height was last fused
         self.accel: np.ndarray | None = None  # last IMU specific force, held until the next
         self.t_accel = float("-inf")
         self.rejections = {"range": 0, "baro": 0, "vo": 0}
@@ -106,12 +110,14 @@ class NavFilter:
         """Everything needed to continue the filter from here."""
         return (self.t, self.x.copy(), self.P.copy(), self.R_nom.copy(), self.p_w0.copy(),
                 self.has_ground, self.has_baro, dict(self.rejections), self.segment,
-                self.accel, self.t_accel, self.realigns, self.published)
+                self.accel, self.t_accel, self.realigns, self.published, self.origin,
+                self.scene_ne)
 
     def restore(self, snap: tuple) -> None:
         """Go back to a snapshot."""
         (self.t, x, P, R_nom, p_w0, self.has_ground, self.has_baro, rejections, self.segment,
-         self.accel, self.t_accel, self.realigns, self.published) = snap
+         self.accel, self.t_accel, self.realigns, self.published, self.origin,
+                self.scene_ne) = snap
         self.ekf.x, self.ekf.P = x.copy(), P.copy()
         self.R_nom, self.p_w0, self.rejections = R_nom.copy(), p_w0.copy(), dict(rejections)
 
@@ -177,6 +183,23 @@ class NavFilter:
         x[ANCHOR] = x[ANCHOR] + v
         self.p_w0 = np.asarray(p_w, float).copy()
 
+    def fix_origin(self) -> None:
+        """The first estimate the autopilot receives defines where the local frame is: the
+        position error accumulated before it (dead reckoning while the scale was still unknown)
+        is no error of that frame. Moving the frame by the unknown error moves every state that
+        lives in it (position, the map's anchor, ground and baro levels) and tells nothing about
+        the others. Left in, it stayed in the published covariance for the whole flight (a
+        0.5-1 m north std on survey-down, errors a tenth of it); conditioning on the position
+        instead would have claimed the scale known (its error made that position error)."""
+        J = np.eye(DIM)
+        J[POS, POS] = 0.0
+        J[ANCHOR, POS] = -np.eye(3)
+        J[GROUND, 2] = J[BARO, 2] = -1.0
+        P = J @ self.ekf.P @ J.T
+        P[POS, POS] += np.eye(3) * ORIGIN_VAR
+        self.ekf.P = 0.5 * (P + P.T)
+        self.origin = self.x[POS].copy()
+
     def reference(self, which: str, value: float, std: float) -> None:
         """(Re)start the ground level ("range") or baro offset ("baro") so that the measured
         `value` (vertical distance to the ground, or altitude) fits the current height:
@@ -233,8 +256,10 @@ class NavFilter:
             Q[BIAS, BIAS] = np.eye(3) * cfg.accel_bias_walk**2 * dt
         Q[ANCHOR, ANCHOR] = np.eye(3) * (cfg.vo_drift_m_per_sqrt_m**2 * speed
                                          + cfg.vo_drift_m_per_sqrt_s**2) * dt
-        Q[LOG_SCALE, LOG_SCALE] = cfg.scale_walk_per_sqrt_s**2 * dt
-        Q[THETA, THETA] = np.eye(3) * np.radians(cfg.alignment_walk_deg_per_sqrt_s) ** 2 * dt
+        Q[LOG_SCALE, LOG_SCALE] = (cfg.scale_walk_per_sqrt_m**2 * horizontal_speed
+                                   + cfg.scale_walk_climb_per_sqrt_m**2 * abs(self.x[5])) * dt
+        Q[THETA, THETA] = np.eye(3) * np.radians(cfg.alignment_walk_deg_per_sqrt_m) ** 2 * (
+            speed * dt)
         Q[GROUND, GROUND] = cfg.ground_walk_m_per_sqrt_m**2 * horizontal_speed * dt
         Q[BARO, BARO] = cfg.baro_walk_m_per_sqrt_s**2 * dt
         Q[VO_TILT, VO_TILT] = np.eye(2) * np.radians(cfg.vo_tilt_error_std_deg) ** 2 * (

@@ -59,6 +59,12 @@ class Timeline:
                 self.snapshots.append((event.t, snapshot()))
         self._prune(until)
 
+    def retake(self, t: float, snapshot: object) -> None:
+        """Replace the snapshot taken at time t (after its frame) by `snapshot`: a change made
+        to the filter after that frame (fix_origin) must survive a rewind to it."""
+        if self.snapshots and self.snapshots[-1][0] == t:
+            self.snapshots[-1] = (t, snapshot)
+
     def _rewind(self, t: float, now_t: float, restore: Callable[[object], None]) -> None:
         i = bisect.bisect_right([s for s, _ in self.snapshots], t)
         if i == 0:

@@ -111,7 +111,7 @@ def run_lockstep(sequence: object, config: Config, frames: FirstFrames, flight: 
     streams = sensor_streams("ardupilot", flight, without)
     messages = autopilot_messages(sequence, flight, streams, end)
     clock = [0.0]
-    estimator = FusionEstimator(config.fusion, config.mounting, config.mavlink,
+    estimator = FusionEstimator(config.fusion, config.mounting,
                                 now=lambda: clock[0])
     estimator.set_clock_offset(OUR_CLOCK - BOOT_CLOCK)
     mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=197)

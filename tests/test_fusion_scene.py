@@ -1,0 +1,49 @@
+"""The tracker wrapper that hands fusion the map points each frame matched (scene.py)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from daemon.fusion.scene import SceneResult, SceneTracker, matched_points
+from vo.result import FrameResult
+
+POINTS = np.arange(30.0).reshape(10, 3)
+
+
+class FakeTracker:
+    """Just what scene.py reads of a vo Tracker: the last frame and the map's points."""
+
+    def __init__(self) -> None:
+        self.map = SimpleNamespace(points=SimpleNamespace(pos_w=POINTS.copy()))
+        self.last = None
+        self.closed = False
+
+    def process(self, image: np.ndarray, t: float) -> FrameResult:
+        self.last = SimpleNamespace(t=t, feat_point=np.array([1, 4, 9]))
+        return FrameResult(t, np.eye(4), "good", np.eye(6), n_matches=3)
+
+    def close(self) -> None:
+        self.closed = True
+
+
+def test_results_carry_the_matched_points_and_the_rest_unchanged() -> None:
+    tracker = SceneTracker(FakeTracker())
+    result = tracker.process(np.zeros((4, 4), np.uint8), 1.5)
+    assert isinstance(result, SceneResult)
+    assert result.t == 1.5 and result.quality == "good" and result.n_matches == 3
+    np.testing.assert_array_equal(result.scene_w, POINTS[[1, 4, 9]])
+    tracker.map.points.pos_w[1] = -1.0  # a copy: the mapping thread may move the points
+    assert result.scene_w[0, 0] == 3.0
+    tracker.close()  # everything else is the tracker's
+    assert tracker.tracker.closed
+
+
+def test_no_points_without_a_pose_or_for_another_frame() -> None:
+    tracker = FakeTracker()
+    tracker.process(None, 1.0)
+    assert matched_points(tracker, FrameResult(1.0, None, "lost")) is None
+    assert matched_points(tracker, FrameResult(2.0, np.eye(4), "good")) is None
+    tracker.last.feat_point = np.array([], dtype=np.int64)
+    assert matched_points(tracker, FrameResult(1.0, np.eye(4), "good")) is None
