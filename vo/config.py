@@ -111,8 +111,10 @@ class TrackerConfig:
     ba_min_rms_px: float = 0.5
     # each point's depth filter estimate is a prior with the filter's sigma times this
     ba_depth_prior_inflation: float = 1.0
-    # scipy least_squares method: 'trf' or 'dogbox' (sparse Jacobian; same final cost on
-    # survey/KITTI/vamr problems, dogbox 16-33% faster), 'lm' (MINPACK, dense: 2-5x slower)
+    # scipy least_squares method, all with the analytic Jacobian: 'trf' or 'dogbox' (sparse;
+    # dogbox 0.4-1.1x trf's time on kitti00/survey-down/room-handheld problems and on 3 of 28
+    # it ended with other observations dropped), 'lm' (MINPACK, dense: 2-4x faster below ~50
+    # unknowns, 8x slower at 230)
     ba_method: str = "trf"
 
     # map initialisation (6.6.1)
