@@ -9,6 +9,7 @@ import os
 import resource
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -94,20 +95,25 @@ def run(args: argparse.Namespace) -> int:
 
 
 def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
-                   quiet: bool, memory_every: int | None = None) -> tuple[dict, Trajectory | None]:
+                   quiet: bool, memory_every: int | None = None,
+                   paced: bool = False) -> tuple[dict, Trajectory | None]:
     """Run the tracker over a sequence: the report (see build_report) and the trajectory;
-    with `memory_every`, the report has "memory" samples and "peak_rss_mb"."""
+    with `memory_every`, the report has "memory" samples and "peak_rss_mb"; `paced` offers
+    each frame no earlier than its timestamp after the first (the camera's rate, so a mapping
+    thread works in the gaps as in flight) instead of as fast as tracking goes."""
     from vo.tracker import Tracker
 
     tracker = Tracker(sequence.camera, config, threaded=threaded)
     times, poses, timings, qualities, segment = [], [], [], [], []
     n_frames = 0
     memory = []
+    pace = camera_rate() if paced else lambda t: None
     started = time.perf_counter()
     first_pose_s = None
     last_print = started
     try:
         for t, image in sequence.frames(max_frames):
+            pace(t)
             result = tracker.process(image, t)
             n_frames += 1
             qualities.append(result.quality)
@@ -140,6 +146,22 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
         report["memory"] = memory
         report["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return report, estimate
+
+
+def camera_rate() -> Callable[[float], None]:
+    """A function pace(t) that returns once as much wall time has passed since its first call
+    as frame time t since the first frame's (at once when tracking is behind)."""
+    first: list[tuple[float, float]] = []
+
+    def pace(t: float) -> None:
+        now = time.perf_counter()
+        if not first:
+            first.append((now, t))
+        delay = (t - first[0][1]) - (now - first[0][0])
+        if delay > 0:
+            time.sleep(delay)
+
+    return pace
 
 
 def memory_sample(tracker, frame: int) -> dict:

@@ -45,6 +45,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              f"{', '.join(CONFIGS)} (or Config1..Config8 as in the thesis; "
                              "default: all eight)")
     parser.add_argument("--threaded", action="store_true", help="mapping in its own thread")
+    parser.add_argument("--paced", action="store_true",
+                        help="with --threaded: offer the frames at the camera rate (their "
+                             "timestamps), so mapping and BA run between frames as in flight")
+    parser.add_argument("--repeat", type=int, default=1, metavar="N",
+                        help="run the configurations N rounds per sequence and print each "
+                             "round's tracking p95 relative to the first configuration, then "
+                             "the median ratio (timing on a shared machine is noisy)")
+    parser.add_argument("--seed", type=int, default=None, metavar="N",
+                        help="the tracker's random seed (default: the configuration's)")
     parser.add_argument("--max-frames", type=int, default=None, metavar="N")
     parser.add_argument("--warm-up", type=int, default=WARM_UP_FRAMES, metavar="N",
                         help="first track N frames of the first sequence untimed, with every "
@@ -64,6 +73,11 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--max-frames must be positive")
     if args.warm_up < 0:
         raise InputError("--warm-up must be 0 or more")
+    if args.repeat <= 0:
+        raise InputError("--repeat must be positive")
+    if args.paced and not args.threaded:
+        raise InputError("--paced needs --threaded (without a mapping thread nothing runs "
+                         "between frames)")
     sequences = [(Path(name).name, resolve_sequence(name)) for name in args.sequences]
     if not args.json:
         print(header(), flush=True)
@@ -72,23 +86,70 @@ def run(args: argparse.Namespace) -> int:
         sequence = in_memory(sequence, args.max_frames)
         if i == 0 and args.warm_up > 0:
             warm_up(sequence, track_sequence, TrackerConfig, args.warm_up)
-        for name in names:
-            config = TrackerConfig.from_dict({**base_parameters(seq_name), **CONFIGS[name]})
-            try:
-                report, _ = track_sequence(sequence, config, args.threaded, args.max_frames,
-                                           quiet=True)
-            except Exception as exc:  # one broken run must not lose the rest of the table
-                failed += 1
-                row = {"sequence": seq_name, "config": name, "error": f"{type(exc).__name__}: "
-                                                                      f"{exc}"}
-            else:
-                row = table_row(seq_name, name, report)
-            print(json.dumps(row) if args.json else format_row(row), flush=True)
+        ratios = []
+        for round_ in range(1, args.repeat + 1):
+            rows = []
+            for name in names:
+                parameters = {**base_parameters(seq_name), **CONFIGS[name]}
+                if args.seed is not None:
+                    parameters["seed"] = args.seed
+                rows.append(table_run(seq_name, name, sequence, TrackerConfig.from_dict(
+                    parameters), args, track_sequence))
+                failed += "error" in rows[-1]
+                print(json.dumps(rows[-1]) if args.json else format_row(rows[-1]), flush=True)
+            if args.repeat > 1:
+                ratios.append(p95_ratios(rows))
+                print(format_ratios(seq_name, f"round {round_}", names[0], ratios[-1],
+                                    args.json), flush=True)
+        if args.repeat > 1:
+            print(format_ratios(seq_name, f"median of {args.repeat}", names[0],
+                                median_ratios(ratios), args.json), flush=True)
         if not args.json and seq_name in ORIGINAL:
             tracked, ate, ms = ORIGINAL[seq_name]
             print(f"{seq_name:<26} {'original C++ (ORB)':<22} {tracked:>9} {ate:>11} "
                   f"{'':>4} {ms:>9}", flush=True)
     return 1 if failed else 0
+
+
+def table_run(seq_name: str, name: str, sequence, config, args: argparse.Namespace,
+              track_sequence) -> dict:
+    """One row: the sequence tracked with one configuration; a run that fails gives a row
+    with its error (one broken run must not lose the rest of the table)."""
+    try:
+        report, _ = track_sequence(sequence, config, args.threaded, args.max_frames,
+                                   quiet=True, paced=args.paced)
+    except Exception as exc:
+        return {"sequence": seq_name, "config": name,
+                "error": f"{type(exc).__name__}: {exc}"}
+    return table_row(seq_name, name, report)
+
+
+def p95_ratios(rows: list[dict]) -> dict[str, float | None]:
+    """Each configuration's tracking p95 over the first row's (None where either is
+    missing)."""
+    base = rows[0].get("track_ms_p95")
+    return {r["config"]: None if not base or r.get("track_ms_p95") is None
+            else r["track_ms_p95"] / base for r in rows[1:]}
+
+
+def median_ratios(rounds: list[dict[str, float | None]]) -> dict[str, float | None]:
+    """Per configuration, the median of its rounds' ratios (None if it has none)."""
+    out = {}
+    for name in rounds[0]:
+        values = [r[name] for r in rounds if r[name] is not None]
+        out[name] = float(np.median(values)) if values else None
+    return out
+
+
+def format_ratios(sequence: str, label: str, first: str, ratios: dict[str, float | None],
+                  as_json: bool) -> str:
+    """A line of tracking p95 ratios to the first configuration (text or JSON)."""
+    if as_json:
+        return json.dumps({"sequence": sequence, "rounds": label, "p95_ratio_to": first,
+                           "p95_ratio": ratios})
+    text = ", ".join(f"{name} {'n/a' if r is None else format(r, '.3f')}"
+                     for name, r in ratios.items())
+    return f"{sequence:<26} {label}: track p95 / {first}'s: {text}"
 
 
 def in_memory(sequence, max_frames: int | None):
@@ -153,12 +214,13 @@ def table_row(sequence: str, config: str, report: dict) -> dict:
 def header() -> str:
     """Column titles of the text table."""
     return (f"{'sequence':<26} {'config':<22} {'tracked':>9} {'ATE m':>11} {'seg':>4} "
-            f"{'track ms':>9} {'map ms':>7} {'map mean':>8}")
+            f"{'track ms':>9} {'p95 ms':>7} {'map ms':>7} {'map mean':>8}")
 
 
 def format_row(r: dict) -> str:
     """One line of the text table: ATE over all segments (several segments are only
-    indicative, each having its own scale), tracking median ms, mapping median and mean ms."""
+    indicative, each having its own scale), tracking median and p95 ms, mapping median and
+    mean ms."""
     label = f"{r['config']} ({THESIS_NAMES[r['config']]})"
     if "error" in r:
         return f"{r['sequence']:<26} {label:<22} failed: {r['error']}"
@@ -168,5 +230,6 @@ def format_row(r: dict) -> str:
 
     return (f"{r['sequence']:<26} {label:<22} {r['tracked']:>4}/{r['frames']:<4} "
             f"{num(r['ate_rmse_m'], '11.4f')} {r['segments']:>4} "
-            f"{num(r['track_ms_median'], '9.2f')} {num(r['mapping_ms_median'], '7.2f')} "
+            f"{num(r['track_ms_median'], '9.2f')} {num(r['track_ms_p95'], '7.2f')} "
+            f"{num(r['mapping_ms_median'], '7.2f')} "
             f"{num(r['mapping_ms_mean'], '8.2f')}")

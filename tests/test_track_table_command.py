@@ -63,3 +63,49 @@ def test_unknown_configuration_is_one_line_error(capsys, configs):
     assert main(["track-table", "x", "--configs", configs]) == 2
     err = capsys.readouterr().err.strip()
     assert "configuration" in err and "\n" not in err
+
+
+def test_repeat_prints_each_rounds_p95_ratio_and_the_median(data_dir, capsys, monkeypatch):
+    """Fake runs with known p95s: BA's ratio to the first configuration is 1.2, 0.9, 1.1 in
+    the three rounds (median 1.1); --paced reaches the tracker run, --seed its config."""
+    monkeypatch.setenv("SDVL_DATA", str(data_dir))
+    p95 = iter([10.0, 12.0, 20.0, 18.0, 10.0, 11.0])
+    calls = []
+
+    def fake(sequence, config, threaded, max_frames, quiet, paced=False):
+        calls.append((config.local_ba, config.seed, threaded, paced))
+        return {"frames": 20, "tracked": 20, "segments": 1, "ate_rmse_m": 0.01,
+                "longest_segment_ate_rmse_m": 0.01, "track_ms_median": 1.0,
+                "track_ms_p95": next(p95), "stages": {}, "stages_mean": {}}, None
+
+    monkeypatch.setattr(sim.track_command, "track_sequence", fake)
+    assert main(["track-table", "vamr_ex01_checkerboard736", "--configs", "patch+rej,Config4",
+                 "--max-frames", "20", "--warm-up", "0", "--threaded", "--paced",
+                 "--repeat", "3", "--seed", "2"]) == 0
+    assert calls == [(False, 2, True, True), (True, 2, True, True)] * 3
+    lines = [line for line in capsys.readouterr().out.splitlines() if "p95 /" in line]
+    ratios = [float(line.rsplit(" ", 1)[1]) for line in lines]
+    assert [line.split(":")[0].split(None, 1)[1] for line in lines] == [
+        "round 1", "round 2", "round 3", "median of 3"]
+    assert ratios == pytest.approx([1.2, 0.9, 1.1, 1.1])
+    assert all("patch+ba+rej" in line for line in lines)
+
+
+def test_paced_needs_threaded(capsys):
+    assert main(["track-table", "x", "--paced"]) == 2
+    assert "--threaded" in capsys.readouterr().err
+
+
+def test_camera_rate_waits_for_each_frames_time(monkeypatch):
+    """The first frame at once; later ones when their time since the first has passed on the
+    clock (a fake one here); none when tracking is behind."""
+    clock, sleeps = [100.0], []
+    monkeypatch.setattr(sim.track_command.time, "perf_counter", lambda: clock[0])
+    monkeypatch.setattr(sim.track_command.time, "sleep", sleeps.append)
+    pace = sim.track_command.camera_rate()
+    pace(5.0)
+    clock[0] += 0.01
+    pace(5.1)  # 0.1 s after the first frame, 0.01 s later on the clock: waits 0.09 s
+    clock[0] += 0.3
+    pace(5.2)  # behind by 0.11 s: no wait
+    assert sleeps == pytest.approx([0.09])

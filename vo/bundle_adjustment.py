@@ -12,7 +12,7 @@ the problem (`ba_min_keyframe_obs`), else it is held: with points needing three 
 keyframes kept 0-12 of their ~50 observations and a BA placed them from those, 0.3-1.1 m off
 (kitti00 ATE 0.37 -> 2.6 m, survey-down 0.12 -> 7.2 m). A BA is skipped when the window already
 agrees to within `ba_min_rms_px` (it would only fit noise). A few trust-region iterations (scipy
-least_squares with a sparse Jacobian pattern), observations beyond the chi-square 95% bound
+least_squares with the analytic sparse Jacobian), observations beyond the chi-square 95% bound
 (2 dof) dropped, more iterations. The problem is copied under the map lock, solved without
 it (tracking goes on; it ends early once a frame waits), and written back under the lock,
 where the tracker moves its last frame along with the keyframes (`follow`).
@@ -25,12 +25,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.sparse import coo_matrix
+from scipy.sparse import csr_matrix
 
 from calib.camera import CameraModel
 from vo.config import TrackerConfig
 from vo.map import CONVERGED, FREE, Map
-from vo.se3 import exp_se3, inv_se3
+from vo.se3 import exp_se3, inv_se3, left_jacobian
 
 CHI2_2DOF_95 = 5.991
 MIN_FIXED = 2  # fixed keyframes holding the gauge (pose and scale)
@@ -142,26 +142,54 @@ def residuals(x: np.ndarray, p: Problem, keep: np.ndarray) -> np.ndarray:
                            (rho - p.rho0) * p.prior_w))
 
 
-def sparsity(p: Problem, keep: np.ndarray) -> coo_matrix:
-    """Which unknowns each residual depends on: observing and host keyframe (when free) and
-    the point."""
+def jacobian(x: np.ndarray, p: Problem, keep: np.ndarray) -> csr_matrix:
+    """Analytic Jacobian of `residuals` (sparse): each observation's two rows depend on the
+    observing and the host keyframe (when free, 6 columns each) and on the point's inverse
+    depth; a free keyframe's columns are its twist's, through se3.left_jacobian."""
+    T, rho = unpack(p, x)
     kf, pt = p.obs_kf[keep], p.obs_pt[keep]
-    n_obs, col_pt = len(kf), 6 * p.n_free + pt
-    rows, cols = [], []
-    for r in (0, 1):
-        row = 2 * np.arange(n_obs) + r
-        rows.append(row)
-        cols.append(col_pt)
-        for k in (kf, p.host[pt]):
-            on = k < p.n_free
-            for c in range(6):
-                rows.append(row[on])
-                cols.append(6 * k[on] + c)
-    rows.append(2 * n_obs + np.arange(len(p.points)))
-    cols.append(6 * p.n_free + np.arange(len(p.points)))
-    r, c = np.concatenate(rows), np.concatenate(cols)
-    return coo_matrix((np.ones(len(r), np.int8), (r, c)),
-                      shape=(2 * n_obs + len(p.points), p.n_params)).tocsr()
+    host = p.host[pt]
+    inv_rho = 1.0 / np.maximum(rho[pt], 1e-9)
+    q = p.f[pt] * inv_rho[:, None]  # the point in its host's frame
+    R_kh = np.einsum("nij,nkj->nik", T[kf, :3, :3], T[host, :3, :3])  # R_k R_h^T
+    X = np.einsum("nij,nj->ni", R_kh, q - T[host, :3, 3]) + T[kf, :3, 3]
+    z = np.maximum(X[:, 2], 1e-6)
+    # d residual / dX; the residual is (observed - projected) * scale
+    A = np.zeros((len(kf), 2, 3))
+    A[:, 0, 0] = A[:, 1, 1] = 1.0 / z
+    A[:, :, 2] = -X[:, :2] / z[:, None] ** 2
+    A *= -p.obs_scale[keep, None, None]
+    left = np.array([left_jacobian(x[6 * k:6 * k + 6]) for k in range(p.n_free)])
+    eye = np.broadcast_to(np.eye(3), (len(kf), 3, 3))
+    # the observing keyframe's left perturbation moves X by (I, -[X]x); the host's moves the
+    # point with T_h^-1, so X by -R_k R_h^T (I, -[q]x); the inverse depth by dq = -q / rho
+    blocks = [(kf, A @ np.concatenate((eye, -_skew(X)), axis=2)),
+              (host, -A @ R_kh @ np.concatenate((eye, -_skew(q)), axis=2))]
+    rows = [2 * np.arange(len(kf)) + r for r in (0, 1)]
+    cols = [6 * p.n_free + pt] * 2
+    d_rho = np.einsum("nij,nj->ni", A @ R_kh, -q * inv_rho[:, None])
+    vals = [d_rho[:, 0], d_rho[:, 1]]
+    for k, J in blocks:
+        on = np.flatnonzero(k < p.n_free)
+        J = J[on] @ left[k[on]]
+        for r in (0, 1):
+            rows.append(np.repeat(2 * on + r, 6))
+            cols.append((6 * k[on, None] + np.arange(6)).ravel())
+            vals.append(J[:, r].ravel())
+    n_points = len(p.points)
+    rows.append(2 * len(kf) + np.arange(n_points))
+    cols.append(6 * p.n_free + np.arange(n_points))
+    vals.append(p.prior_w)
+    return csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                      shape=(2 * len(kf) + n_points, p.n_params))
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) cross-product matrices of the rows of v."""
+    out = np.zeros((len(v), 3, 3))
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
+    return out
 
 
 def solve(p: Problem, first: int = 5, second: int = 10, method: str = "trf",
@@ -185,10 +213,12 @@ def solve(p: Problem, first: int = 5, second: int = 10, method: str = "trf",
         if rounds <= 0 or keep.sum() < 6 or stop():
             break
         start = np.sum(residuals(x, p, keep) ** 2)
-        sparse = {} if method == "lm" else {"jac_sparsity": sparsity(p, keep),
-                                            "x_scale": "jac", "callback": check}
-        res = least_squares(_paused(pause, residuals), x, method=method, args=(p, keep), **sparse,
-                            max_nfev=_nfev(rounds, method, p.n_params))
+        if method == "lm":
+            options = {"jac": _dense(jacobian)}
+        else:
+            options = {"jac": jacobian, "x_scale": "jac", "callback": check}
+        res = least_squares(_paused(pause, residuals), x, method=method, args=(p, keep),
+                            max_nfev=rounds, **options)
         if np.sum(res.fun ** 2) < start:
             x = res.x
         if drop:
@@ -207,10 +237,11 @@ def _paused(pause: Callable[[], None], fun: Callable) -> Callable:
     return paused
 
 
-def _nfev(iterations: int, method: str, n_params: int) -> int:
-    """least_squares' evaluation budget for `iterations` iterations: MINPACK counts the
-    finite-difference evaluations of its Jacobian too, the sparse methods do not."""
-    return iterations * (n_params + 1) if method == "lm" else iterations
+def _dense(fun: Callable) -> Callable:
+    """fun with its sparse result as a dense array (MINPACK's 'lm' takes only those)."""
+    def dense(*args):
+        return fun(*args).toarray()
+    return dense
 
 
 def apply(map_: Map, p: Problem, T: np.ndarray, rho: np.ndarray,

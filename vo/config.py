@@ -107,12 +107,16 @@ class TrackerConfig:
     # tracking placed it from all its matches, a handful of points would place it worse
     ba_min_keyframe_obs: int = 20
     # the BA runs only when the local problem's rms reprojection error is at least this
-    # (pixels): below, the keyframes already agree to within the noise
+    # (pixels): below, the keyframes already agree to within the noise (survey-down: every
+    # window is below; with 0 its 6-7 BAs take ATE 0.054/0.083/0.053 -> 0.23/0.25/0.23 m,
+    # tracker seeds 0/1/2)
     ba_min_rms_px: float = 0.5
     # each point's depth filter estimate is a prior with the filter's sigma times this
     ba_depth_prior_inflation: float = 1.0
-    # scipy least_squares method: 'trf' or 'dogbox' (sparse Jacobian; same final cost on
-    # survey/KITTI/vamr problems, dogbox 16-33% faster), 'lm' (MINPACK, dense: 2-5x slower)
+    # scipy least_squares method, all with the analytic Jacobian: 'trf' or 'dogbox' (sparse;
+    # dogbox 0.4-1.1x trf's time on kitti00/survey-down/room-handheld problems and on 3 of 28
+    # it ended with other observations dropped), 'lm' (MINPACK, dense: 2-4x faster below ~50
+    # unknowns, 8x slower at 230)
     ba_method: str = "trf"
 
     # map initialisation (6.6.1)

@@ -32,6 +32,32 @@ def exp_se3(xi):
     return T
 
 
+def left_jacobian(xi: np.ndarray) -> np.ndarray:
+    """6x6 left Jacobian of exp_se3 at the twist xi = (v, w): exp(xi + d) = exp(J d) exp(xi)
+    to first order in d (Barfoot & Furgale 2014, eq. 102), so a solver that adds d to xi
+    moves the transform by the left perturbation J d."""
+    v, w = xi[:3], xi[3:]
+    theta2 = float(w @ w)
+    theta = np.sqrt(theta2)
+    W, V = skew(w), skew(np.ascontiguousarray(v))
+    if theta < 1e-2:  # series: the closed forms cancel catastrophically near 0
+        a, b = 0.5 - theta2 / 24.0, 1.0 / 6.0 - theta2 / 120.0
+        c, d = 1.0 / 24.0 - theta2 / 720.0, 1.0 / 120.0 - theta2 / 2520.0
+    else:
+        s, co = np.sin(theta), np.cos(theta)
+        a, b = (1.0 - co) / theta2, (theta - s) / (theta2 * theta)
+        c = (theta2 + 2.0 * co - 2.0) / (2.0 * theta2 * theta2)
+        d = (2.0 * theta - 3.0 * s + theta * co) / (2.0 * theta2 * theta2 * theta)
+    W2 = W @ W
+    WVW = W @ V @ W
+    Q = (0.5 * V + b * (W @ V + V @ W + WVW) + c * (W2 @ V + V @ W2 - 3.0 * WVW)
+         + d * (WVW @ W + W @ WVW))
+    J = np.zeros((6, 6))
+    J[:3, :3] = J[3:, 3:] = np.eye(3) + a * W + b * W2
+    J[:3, 3:] = Q
+    return J
+
+
 @numba.njit(cache=True, nogil=True)
 def inv_se3(T):
     """The inverse of a rigid transform."""
