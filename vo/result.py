@@ -27,10 +27,10 @@ class FrameResult:
     n_matches: int = 0
     n_attempts: int = 0
     n_inliers: int = 0
-    n_hypotheses: int = 0
     timings: dict[str, float] = field(default_factory=dict)
     new_segment: bool = False
     keyframe: bool = False
+    n_hypotheses: int = 0
 
     @property
     def has_pose(self) -> bool:

@@ -467,7 +467,7 @@ class Tracker:
         self.motion = np.eye(4)
         self.last = frame
         return FrameResult(frame.t, frame.T_w_c, self._quality(m), cov, len(m.ids), m.n_attempts,
-                           int(m.inlier.sum()), m.n_hypotheses, new_segment=True)
+                           int(m.inlier.sum()), new_segment=True, n_hypotheses=m.n_hypotheses)
 
     def _align_to_keyframe(self, frame: Frame, kf: Frame) -> float:
         """Frame's pose by direct alignment to keyframe kf from the best of the shifted
