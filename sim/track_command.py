@@ -4,6 +4,7 @@ timing (median, p95) at the end; doubles as the tracker benchmark."""
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import os
 import resource
@@ -18,6 +19,8 @@ from calib.errors import InputError
 from sim.trajectory import Trajectory, write_tum
 
 PROGRESS_EVERY_S = 2.0
+FRAME_COLUMNS = ("t", "quality", "matches", "attempts", "ransac_hypotheses", "inliers",
+                 "keyframe", "new_segment", "error_m")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,6 +38,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--memory", type=int, default=None, metavar="N",
                         help="every N frames record resident memory and the map's size "
                              "(keyframes, points, observations); report the peak RSS")
+    parser.add_argument("--frames-csv", type=Path, default=None, metavar="FILE",
+                        help="write one CSV row per frame: time, quality, matches, match "
+                             "attempts, RANSAC hypotheses, inliers, keyframe and new-segment "
+                             "flags, position error (m) after the Sim(3) alignment")
     parser.add_argument("--json", action="store_true", help="print one JSON object at the end")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
@@ -86,21 +93,26 @@ def run(args: argparse.Namespace) -> int:
 
         size = parse_size(args.size)
     sequence = resolve_sequence(args.sequence, size)
+    rows: list[dict] | None = None if args.frames_csv is None else []
     report, estimate = track_sequence(sequence, config, args.threaded, args.max_frames,
-                                      args.quiet, args.memory)
+                                      args.quiet, args.memory, frame_rows=rows)
     if args.out is not None and estimate is not None:
         write_tum(estimate, args.out)
+    if rows is not None:
+        write_frames_csv(args.frames_csv, rows, sequence.groundtruth, estimate)
     print(json.dumps(report) if args.json else format_report(report))
     return 0
 
 
 def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
                    quiet: bool, memory_every: int | None = None,
-                   paced: bool = False) -> tuple[dict, Trajectory | None]:
+                   paced: bool = False,
+                   frame_rows: list[dict] | None = None) -> tuple[dict, Trajectory | None]:
     """Run the tracker over a sequence: the report (see build_report) and the trajectory;
     with `memory_every`, the report has "memory" samples and "peak_rss_mb"; `paced` offers
     each frame no earlier than its timestamp after the first (the camera's rate, so a mapping
-    thread works in the gaps as in flight) instead of as fast as tracking goes."""
+    thread works in the gaps as in flight) instead of as fast as tracking goes; `frame_rows`
+    gets one frame_row per frame."""
     from vo.tracker import Tracker
 
     tracker = Tracker(sequence.camera, config, threaded=threaded)
@@ -117,6 +129,8 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
             result = tracker.process(image, t)
             n_frames += 1
             qualities.append(result.quality)
+            if frame_rows is not None:
+                frame_rows.append(frame_row(result))
             if result.quality not in ("initializing",):
                 timings.append(result.timings)
             if result.has_pose:
@@ -162,6 +176,34 @@ def camera_rate() -> Callable[[float], None]:
             time.sleep(delay)
 
     return pace
+
+
+def frame_row(result) -> dict:
+    """The per-frame diagnostics of --frames-csv (without the error, known only at the end)."""
+    return {"t": result.t, "quality": result.quality, "matches": result.n_matches,
+            "attempts": result.n_attempts, "ransac_hypotheses": result.n_hypotheses,
+            "inliers": result.n_inliers, "keyframe": int(result.keyframe),
+            "new_segment": int(result.new_segment), "error_m": ""}
+
+
+def write_frames_csv(path: Path, rows: list[dict], groundtruth: Trajectory | None,
+                     estimate: Trajectory | None) -> None:
+    """Write the frame rows as CSV; error_m is the distance of each pose from the ground truth
+    after the Sim(3) alignment of the whole trajectory (as the ATE), empty without a pose or
+    ground truth."""
+    from sim.metrics import align_trajectories
+
+    if groundtruth is not None and estimate is not None and len(estimate) >= 3:
+        a = align_trajectories(groundtruth, estimate, "sim3")
+        errors = np.linalg.norm(a.groundtruth.positions - a.estimate.positions, axis=1)
+        by_time = dict(zip(a.estimate.t.tolist(), errors.tolist(), strict=True))
+        for row in rows:
+            if row["t"] in by_time:
+                row["error_m"] = f"{by_time[row['t']]:.6f}"
+    with open(path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(FRAME_COLUMNS))
+        writer.writeheader()
+        writer.writerows(rows)
 
 
 def memory_sample(tracker, frame: int) -> dict:

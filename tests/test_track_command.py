@@ -1,11 +1,15 @@
-"""`sdvl track`: report fields, trajectory file, config errors."""
+"""`sdvl track`: report fields, trajectory file, per-frame CSV, config errors."""
 
 from __future__ import annotations
 
+import csv
 import json
 
+import numpy as np
+import pytest
+
 from sim.cli import main
-from sim.track_command import format_report
+from sim.track_command import FRAME_COLUMNS, format_report
 from sim.trajectory import read_tum
 
 
@@ -58,3 +62,29 @@ def test_size_is_only_for_synthetic_presets(data_dir, capsys):
     code = main(["track", str(data_dir / "vamr_ex01_checkerboard736"), "--size", "160x120"])
     assert code == 2
     assert "--size is for synthetic presets" in capsys.readouterr().err
+
+
+def test_frames_csv_has_a_row_per_frame_and_the_ate_errors(data_dir, tmp_path, capsys):
+    path = tmp_path / "frames.csv"
+    assert main(["track", str(data_dir / "vamr_ex01_checkerboard736"), "--max-frames", "60",
+                 "--json", "--quiet", "--frames-csv", str(path),
+                 "--config", str(_rejection_config(tmp_path))]) == 0
+    report = json.loads(capsys.readouterr().out)
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 60 and tuple(rows[0]) == FRAME_COLUMNS
+    errors = np.array([float(r["error_m"]) for r in rows if r["error_m"]])
+    assert len(errors) == report["tracked"]
+    # the per-frame errors (written to the micrometre) are the ones the ATE is the RMS of
+    assert np.sqrt(np.mean(errors ** 2)) == pytest.approx(report["ate_rmse_m"], abs=1e-6)
+    tracked = [r for r in rows if r["quality"] in ("good", "insufficient")]
+    assert all(int(r["inliers"]) <= int(r["matches"]) <= int(r["attempts"]) for r in tracked)
+    assert any(int(r["ransac_hypotheses"]) > 0 for r in tracked)
+    assert rows[0]["error_m"] == "" and sum(int(r["new_segment"]) for r in rows) >= 1
+    assert sum(int(r["keyframe"]) for r in rows) >= 2
+
+
+def _rejection_config(tmp_path):
+    cfg = tmp_path / "rejection.toml"
+    cfg.write_text("outlier_rejection = true\n")
+    return cfg

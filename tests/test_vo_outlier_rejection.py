@@ -131,9 +131,15 @@ def test_rejection_keeps_people_who_walk_off_out_of_the_pose():
     with_rejection, tracked, frames = _track_walkers("walkers", True)
     without, _, _ = _track_walkers("walkers", False)
     assert tracked >= 0.9 * frames
-    # measured at 320x240: 0.0240 m with rejection, 0.0110 m on the empty square (2.2x) and
-    # 0.111 m without rejection (4.6x worse). Issue #5 asks for 1.5x of the empty square: not
-    # met (at 640x480 2.9x: 0.0077 vs 0.0027 m; 0.043 m without rejection); the gap is the
-    # departure, when the ground the group stood on has no map points (matches 45 -> 20)
+    # measured at 320x240: 0.0240 m with rejection, 0.0110 m on the empty square (2.2x; seeds
+    # 1, 2: 1.75x, 3.8x) and 0.111 m without rejection (4.6x worse). Issue #5 asks for 1.5x of
+    # the empty square: not met (at 640x480 2.9x: 0.0077 vs 0.0027 m; 0.043 m without). The
+    # cause is not outliers (dropping every match on a person pixel, ground truth, leaves
+    # 0.026/0.023/0.039 m for seeds 0-2) but the ground the group stood on: no keyframe saw it
+    # with parallax, so once uncovered during the hold it has only candidates of unknown depth
+    # (sigma/rho 0.7-0.9, 10-20% off), while 9-17 converged points stay in view (27-43 on the
+    # empty square; every converged one within 5% of its true depth); poses jitter by 20-90 mm
+    # and the hold's keyframes pass that on. The walkers ATE is chaotic: the same change can
+    # move one seed by 2-3x either way.
     assert with_rejection <= 2.5 * calm
     assert with_rejection < 0.35 * without

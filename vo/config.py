@@ -137,6 +137,12 @@ class TrackerConfig:
     seed_sigma_ratio: float = 1.0
     convergence_L: float = 0.1
     seed_max_failures: int = 5
+    # a new candidate no keyframe matched (ground uncovered by people who stood on it in every
+    # earlier keyframe) starts at the depth of the plane through the keyframe's converged
+    # points, +- this fraction of its inverse depth, when that plane holds seed_plane_min_fit
+    # of them to within 2% of their depth (0: such candidates are dropped, as in the thesis)
+    seed_plane_sigma: float = 0.0
+    seed_plane_min_fit: float = 0.9
     epipolar_margin_px: float = 2.0
     # "patch" (affine-warped patches, ZMSSD below zmssd_threshold per pixel) or "orb" (ORB
     # descriptors, 6.5.1, Hamming distance <= orb_max_distance) in every point search

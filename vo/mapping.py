@@ -21,6 +21,9 @@ from vo.orb import DESC_BYTES, OrbQuery, describe_levels, query
 from vo.se3 import inv_se3
 
 SHI_TOMASI_HALF = 3
+# a point lies on a fitted plane within this fraction of its distance
+PLANE_FIT_TOLERANCE = 0.02
+MIN_PLANE_POINTS = 8
 
 
 @numba.njit(cache=True, nogil=True)
@@ -246,6 +249,8 @@ class Mapper:
             search_new(*args, orb.tables)
             if orb.fill():  # an ORB pass matches what it can and collects what it needs
                 search_new(*args, orb.tables)
+        if cfg.seed_plane_sigma > 0:
+            self._seed_on_plane(frame, f, rho, sigma)
         new = np.flatnonzero(np.isfinite(rho))
         with self.map.lock:
             ids = pts.add(slot, u[new], v[new], level[new], f[new], rho[new], sigma[new],
@@ -261,6 +266,25 @@ class Mapper:
             self.shortened_ba += int(self._ba_cut)
         else:
             self.skipped_ba += int(cfg.local_ba)
+
+    def _seed_on_plane(self, frame: Frame, f: np.ndarray, rho: np.ndarray,
+                       sigma: np.ndarray) -> None:
+        """Give the new candidates without a depth (rho NaN) the inverse depth where their ray
+        meets the plane of frame's converged points, if those points lie on a plane."""
+        cfg = self.config
+        pts = self.map.points
+        ids = frame.feat_point[pts.status[frame.feat_point] == CONVERGED]
+        X = pts.pos_w[ids] @ frame.T_c_w[:3, :3].T + frame.T_c_w[:3, 3]
+        plane = fit_plane(X, PLANE_FIT_TOLERANCE, cfg.seed_plane_min_fit)
+        if plane is None:
+            return
+        normal, offset = plane
+        along = f @ normal
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = along / offset  # inverse range along each bearing to the plane
+        fill = np.isnan(rho) & (r > 0)
+        rho[fill] = r[fill]
+        sigma[fill] = cfg.seed_plane_sigma * r[fill]
 
     def _stop_ba(self) -> bool:
         """True once tracking has a frame waiting: the BA ends early rather than fall
@@ -328,3 +352,27 @@ class Mapper:
             if slot is None:
                 break
             self.map.remove_keyframe(slot)
+
+
+def fit_plane(X: np.ndarray, tolerance: float, min_fit: float,
+              rounds: int = 3) -> tuple[np.ndarray, float] | None:
+    """The plane n . X = d (unit n, d > 0: the camera at the origin is off it) through points
+    X (N, 3) in a camera frame, refitted to the points near it a few times; None when fewer
+    than min_fit of the points are within tolerance * distance of it (not a plane) or there
+    are too few points."""
+    if len(X) < MIN_PLANE_POINTS:
+        return None
+    dist = np.linalg.norm(X, axis=1)
+    near = np.ones(len(X), dtype=bool)
+    for _ in range(rounds):
+        if near.sum() < 3:
+            return None
+        centre = X[near].mean(axis=0)
+        D = X[near] - centre
+        normal = np.linalg.eigh(D.T @ D)[1][:, 0]  # least-spread direction
+        off = np.abs((X - centre) @ normal)
+        near = off < max(3.0 * float(np.median(off)), 1e-9)
+    if np.mean(off < tolerance * dist) < min_fit:
+        return None
+    d = float(centre @ normal)
+    return (normal, d) if d > 0 else (-normal, -d)

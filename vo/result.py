@@ -16,6 +16,8 @@ class FrameResult:
     `T_w_c` is world-from-camera (None when there is no pose); `covariance` is the 6x6 covariance
     of the pose in the tracker's world frame, translation xyz then rotation xyz (a left
     perturbation exp(d) * T_w_c); `new_segment` is true on the first pose of a new map.
+    `n_attempts` counts the map points matching tried (the quality ratio's denominator),
+    `n_hypotheses` the RANSAC hypotheses outlier rejection fitted (0 without it).
     """
 
     t: float
@@ -28,6 +30,7 @@ class FrameResult:
     timings: dict[str, float] = field(default_factory=dict)
     new_segment: bool = False
     keyframe: bool = False
+    n_hypotheses: int = 0
 
     @property
     def has_pose(self) -> bool:

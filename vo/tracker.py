@@ -283,7 +283,8 @@ class Tracker:
         m = self._match(frame, timings)
         quality = self._quality(m)
         result = FrameResult(frame.t, None, quality, n_matches=len(m.ids),
-                             n_attempts=m.n_attempts, n_inliers=int(m.inlier.sum()))
+                             n_attempts=m.n_attempts, n_inliers=int(m.inlier.sum()),
+                             n_hypotheses=m.n_hypotheses)
         if quality == "bad":
             if self.lost.update(quality):
                 result.quality = "lost"
@@ -316,7 +317,7 @@ class Tracker:
         focal = np.sqrt(self.camera.fx * self.camera.fy)
         use = np.ones(len(ids), dtype=bool)
         if cfg.outlier_rejection and len(ids) > outlier_rejection.SUBSET:
-            use = self._reject_outliers(frame, ids, uv, levels)
+            use, m.n_hypotheses = self._reject_outliers(frame, ids, uv, levels)
             timings["ransac"] = _ms(t0)
         if use.sum() >= MIN_POSE_MATCHES:
             T, H, sigma, err = self._optimize(frame, ids[use], uv[use], levels[use])
@@ -339,8 +340,9 @@ class Tracker:
         return np.sqrt(outlier_rejection.squared_errors(pos, obs, frame.T_c_w))
 
     def _reject_outliers(self, frame: Frame, ids: np.ndarray, uv: np.ndarray,
-                         levels: np.ndarray) -> np.ndarray:
-        """RANSAC inliers (6.8) among the matches, hypotheses from frame's prior pose."""
+                         levels: np.ndarray) -> tuple[np.ndarray, int]:
+        """RANSAC inliers (6.8) among the matches, hypotheses from frame's prior pose; and
+        how many hypotheses were fitted."""
         cfg = self.config
         f = self.camera.unproject(uv)
         obs = np.ascontiguousarray(f[:, :2] / f[:, 2:])
@@ -348,10 +350,10 @@ class Tracker:
         subsets = outlier_rejection.random_subsets(len(ids), cfg.ransac_max_hypotheses,
                                                    cfg.seed + frame.id)
         focal = np.sqrt(self.camera.fx * self.camera.fy)
-        inlier, _ = outlier_rejection.ransac(
+        inlier, tried = outlier_rejection.ransac(
             np.ascontiguousarray(self.map.points.pos_w[ids]), obs, scale, frame.T_c_w, subsets,
             cfg.ransac_threshold_px / focal, cfg.ransac_probability)
-        return inlier
+        return inlier, int(tried)
 
     def _quality(self, m: _Matches) -> str:
         """Quality of 6.10; a match counts once it survives the pose refinement."""
@@ -465,7 +467,7 @@ class Tracker:
         self.motion = np.eye(4)
         self.last = frame
         return FrameResult(frame.t, frame.T_w_c, self._quality(m), cov, len(m.ids), m.n_attempts,
-                           int(m.inlier.sum()), new_segment=True)
+                           int(m.inlier.sum()), new_segment=True, n_hypotheses=m.n_hypotheses)
 
     def _align_to_keyframe(self, frame: Frame, kf: Frame) -> float:
         """Frame's pose by direct alignment to keyframe kf from the best of the shifted
@@ -595,6 +597,7 @@ class _Matches:
     T: np.ndarray
     H: np.ndarray | None
     sigma: float
+    n_hypotheses: int = 0
 
 
 def _rotation_std_deg(cov: np.ndarray | None) -> float:
