@@ -267,16 +267,17 @@ class FusionEstimator:
 
     def _climb_scale(self, t: float, frame: FrameInput, att: object) -> None:
         """Pair the tracker's height with the barometer's; while the filter does not know the
-        scale yet (std above coarse_scale_std: no rangefinder, no IMU fix), take it from their
-        fit over the climb (climb_scale.py)."""
+        scale from elsewhere (std above coarse_scale_std, or no IMU) and has not published, take
+        it from their fit over the climb when that is surer (climb_scale.py)."""
         f, cfg = self.filter, self.cfg
         if self._baro is None or abs(t - self._baro[0]) > RANGE_FRESH_S:
             return
         f.climb.add(float((f.R_nom @ (frame.p_w - f.p_w0))[2]), *self._baro)
-        if att is None or np.sqrt(f.P[LOG_SCALE, LOG_SCALE]) <= cfg.coarse_scale_std:
+        std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
+        if att is None or f.published or (std <= cfg.coarse_scale_std and self._imu_fresh(t)):
             return
         fit = f.climb.fit(cfg.climb_scale_min_m, cfg.baro_std_m)
-        if fit is not None:
+        if fit is not None and fit[1] < std:
             log.info("fusion: scale %.3g m/unit from the climb (+-%.1f%%)", np.exp(fit[0]),
                      100 * fit[1])
             f.rescale(frame.p_w, att.R_n_b, *fit)
