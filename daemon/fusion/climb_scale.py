@@ -5,7 +5,7 @@ Without an IMU or a rangefinder the filter starts from the wide scale prior, and
 linearised fixes land far off (about 9x on hover-down), so the barometer's climb then fails its
 gate and nothing is published. A straight-line fit of -altitude = scale * z + c, with z the
 tracker's camera height in its own units along N's down axis, needs no linearisation; once the
-barometer has seen `climb_scale_min_m` of climb it gives the scale to a few percent.
+fitted climb reaches `climb_scale_min_m` it gives the scale to a few percent.
 """
 
 from __future__ import annotations
@@ -36,15 +36,11 @@ class ClimbScale:
             self.z_units.append(float(z_units))
             self.altitude.append(float(altitude))
 
-    def climb_m(self) -> float:
-        """Altitude range the barometer has seen over this segment, metres."""
-        return float(np.ptp(self.altitude)) if self.altitude else 0.0
-
     def fit(self, min_climb_m: float, baro_std_m: float) -> tuple[float, float] | None:
         """(ln(scale), its std) once the climb reaches `min_climb_m` and the fit says the map
         goes down when the barometer goes up; else None. The std is the larger of the
         barometer's noise and the fit's residuals, over the tracker's spread of heights."""
-        if len(self.z_units) < 3 or self.climb_m() < min_climb_m:
+        if len(self.z_units) < 3:
             return None
         z = np.asarray(self.z_units)
         down = -np.asarray(self.altitude)
@@ -53,7 +49,7 @@ class ClimbScale:
         if spread <= 0:
             return None
         slope = float(dz @ (down - down.mean())) / spread
-        if not slope > 0:
+        if not (slope > 0 and slope * float(np.ptp(z)) >= min_climb_m):  # the fitted climb
             return None
         residual = down - down.mean() - slope * dz
         noise = max(baro_std_m, float(np.sqrt(residual @ residual / (len(z) - 2))))
