@@ -22,7 +22,7 @@ def _climb(height_m: float, n: int = 50, seed: int = 0) -> ClimbScale:
 
 
 def test_no_scale_before_the_minimum_climb() -> None:
-    assert _climb(0.8).fit(1.0, 0.3) is None
+    assert _climb(0.5).fit(1.0, 0.3) is None
 
 
 def test_scale_from_a_climb_within_its_std() -> None:
