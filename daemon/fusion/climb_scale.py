@@ -36,6 +36,10 @@ class ClimbScale:
             self.z_units.append(float(z_units))
             self.altitude.append(float(altitude))
 
+    def climb_m(self, log_scale: float) -> float:
+        """The tracker's height range in metres at scale exp(log_scale)."""
+        return float(np.exp(log_scale) * np.ptp(self.z_units)) if self.z_units else 0.0
+
     def fit(self, min_climb_m: float, baro_std_m: float) -> tuple[float, float] | None:
         """(ln(scale), its std) once the climb reaches `min_climb_m` and the fit says the map
         goes down when the barometer goes up; else None. The std is the larger of the

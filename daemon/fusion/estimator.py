@@ -277,6 +277,9 @@ class FusionEstimator:
         if att is None or f.published or (std <= cfg.coarse_scale_std and self._imu_fresh(t)):
             return
         fit = f.climb.fit(cfg.climb_scale_min_m, cfg.baro_std_m)
+        if fit is not None:  # the map's own scale wanders over the climb (its walk, halved)
+            fit = (fit[0], float(np.hypot(fit[1], 0.5 * cfg.scale_walk_climb_per_sqrt_m
+                                          * np.sqrt(f.climb.climb_m(fit[0])))))
         if fit is not None and fit[1] < std:
             log.info("fusion: scale %.3g m/unit from the climb (+-%.1f%%)", np.exp(fit[0]),
                      100 * fit[1])
