@@ -156,3 +156,16 @@ def test_nees_heading_and_take_off_scores() -> None:
     assert scores["heading_rms_deg"] == pytest.approx(5.0)
     assert scores["nees_position"] == pytest.approx(1 / 3)
     assert scores["ate_pct_distance"] == pytest.approx(100 * 0.3 / scores["distance_m"])
+
+
+def test_barometer_alone_gives_the_scale_on_the_take_off() -> None:
+    """No IMU, no rangefinder: the map's height against the barometer over the climb
+    (daemon/fusion/climb_scale.py); before it, nothing was ever published."""
+    sequence = synthetic_sequence("hover-down", frames=450, size=(64, 48), seed=1)
+    blank = np.zeros((48, 64), np.uint8)
+    report = replay(dataclasses.replace(sequence, image_loader=lambda i: blank),
+                    without=("imu", "rangefinder"))
+    print("\n" + format_report(report))
+    assert report["first_publish_s"] is not None and report["messages_received"] >= 60
+    assert report["ate_pct_distance"] <= 3.0
+    assert report["nees_position"] <= 2.0

@@ -111,6 +111,11 @@ class FusionConfig:
     use_baro: bool = True
     baro_std_m: float = 0.3
     baro_walk_m_per_sqrt_s: float = 0.02
+    # while the filter does not know the scale (no rangefinder, no IMU fix yet), it is taken
+    # from a least-squares fit of the tracker's height against the barometer's altitude once
+    # the barometer has seen this much climb (climb_scale.py): without it a barometer-only
+    # take-off published nothing (the wide prior's first fix landed about 9x off)
+    climb_scale_min_m: float = 1.0
     # outlier rejection: chi-square gate per measurement (99.9 % for 1, 3, 6 dof: 10.8, 16.3, 22.5)
     gate_chi2_1dof: float = 10.8
     gate_chi2_3dof: float = 16.3
@@ -136,7 +141,7 @@ class FusionConfig:
                     "motion_accel_std", "range_std_m", "baro_std_m", "gate_chi2_1dof",
                     "terrain_relief_m", "terrain_correlation_m", "scene_height_std_fraction",
                     "gate_chi2_3dof", "gate_chi2_6dof", "history_s", "clock_offset_window_s",
-                    "quality_good_std_m", "rate_std_rad_s")
+                    "quality_good_std_m", "rate_std_rad_s", "climb_scale_min_m")
         for key in positive:
             if not getattr(self, key) > 0:
                 raise InputError(f"fusion.{key} must be > 0", path)

@@ -98,6 +98,7 @@ class FusionEstimator:
         self._origin_t: float | None = None  # capture time of the first estimate sent
         self._last_frame_t = float("-inf")
         self._range: tuple[float, float] | None = None  # (t, distance) of the newest reading
+        self._baro: tuple[float, float] | None = None  # (t, altitude) of the newest reading
         optical_axis = self.R_c_b.T[:, 2]  # in body FRD
         self._camera_down = optical_axis[2] >= np.cos(np.radians(cfg.range_max_tilt_deg))
 
@@ -200,6 +201,8 @@ class FusionEstimator:
             return
         if event.kind == "range":
             self._range = (event.t, event.data.distance)
+        elif event.kind == "baro":
+            self._baro = (event.t, event.data.altitude)
         if f.t is None or event.kind == "attitude":
             return
         self._propagate(event.t)
@@ -242,6 +245,7 @@ class FusionEstimator:
             f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, *self._scale_prior(t))
             f.segment = frame.segment
             return
+        self._climb_scale(t, frame, att)
         factor = inflation(self.cfg, frame.quality)
         coarse = (self.cfg.coarse_inflation
                   if np.sqrt(f.P[LOG_SCALE, LOG_SCALE]) > self.cfg.coarse_scale_std else 1.0)
@@ -260,6 +264,26 @@ class FusionEstimator:
             f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, f.x[LOG_SCALE],
                             float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE])))
             f.rejections["vo"] = 0
+
+    def _climb_scale(self, t: float, frame: FrameInput, att: object) -> None:
+        """Pair the tracker's height with the barometer's; while the filter does not know the
+        scale from elsewhere (std above coarse_scale_std, or no IMU) and has not published, take
+        it from their fit over the climb when that is surer (climb_scale.py)."""
+        f, cfg = self.filter, self.cfg
+        if self._baro is None or abs(t - self._baro[0]) > RANGE_FRESH_S:
+            return
+        f.climb.add(float((f.R_nom @ (frame.p_w - f.p_w0))[2]), *self._baro)
+        std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
+        if att is None or f.published or (std <= cfg.coarse_scale_std and self._imu_fresh(t)):
+            return
+        fit = f.climb.fit(cfg.climb_scale_min_m, cfg.baro_std_m)
+        if fit is not None:  # the map's own scale wanders over the climb (its walk, halved)
+            fit = (fit[0], float(np.hypot(fit[1], 0.5 * cfg.scale_walk_climb_per_sqrt_m
+                                          * np.sqrt(f.climb.climb_m(fit[0])))))
+        if fit is not None and fit[1] < std:
+            log.info("fusion: scale %.3g m/unit from the climb (+-%.1f%%)", np.exp(fit[0]),
+                     100 * fit[1])
+            f.rescale(frame.p_w, att.R_n_b, *fit)
 
     def _scene_height(self, t: float, frame: FrameInput, R_n_b: np.ndarray) -> None:
         """Fuse the map's height above the ground (its matched points' median depth along the

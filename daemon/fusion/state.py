@@ -28,6 +28,7 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.spatial.transform import Rotation
 
+from daemon.fusion.climb_scale import ClimbScale
 from daemon.fusion.config import FusionConfig
 
 POS, VEL, BIAS, ANCHOR, THETA = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12),
@@ -86,6 +87,7 @@ class NavFilter:
         # where the first estimate ever sent put the vehicle: it defines the local frame
         self.origin: np.ndarray | None = None
         self.scene_ne: np.ndarray | None = None  # where the map's height was last fused
+        self.climb = ClimbScale()  # the current map's heights against the barometer's
         self.accel: np.ndarray | None = None  # last IMU specific force, held until the next
         self.t_accel = float("-inf")
         self.rejections = {"range": 0, "baro": 0, "vo": 0}
@@ -111,14 +113,15 @@ class NavFilter:
         return (self.t, self.x.copy(), self.P.copy(), self.R_nom.copy(), self.p_w0.copy(),
                 self.has_ground, self.has_baro, dict(self.rejections), self.segment,
                 self.accel, self.t_accel, self.realigns, self.published, self.origin,
-                self.scene_ne)
+                self.scene_ne, self.climb.copy())
 
     def restore(self, snap: tuple) -> None:
         """Go back to a snapshot."""
         (self.t, x, P, R_nom, p_w0, self.has_ground, self.has_baro, rejections, self.segment,
          self.accel, self.t_accel, self.realigns, self.published, self.origin,
-                self.scene_ne) = snap
+         self.scene_ne, climb) = snap
         self.ekf.x, self.ekf.P = x.copy(), P.copy()
+        self.climb = climb.copy()
         self.R_nom, self.p_w0, self.rejections = R_nom.copy(), p_w0.copy(), dict(rejections)
 
     # --- initialisation -----------------------------------------------------------------------
@@ -145,6 +148,7 @@ class NavFilter:
         """A new map: clone the camera position as the anchor, fresh alignment, and the scale
         with `scale_std` (default: the prior's)."""
         self.published = False
+        self.climb = ClimbScale()
         x, P = self.ekf.x, self.ekf.P
         x[ANCHOR] = x[POS] + R_n_b @ self.lever
         P[ANCHOR, :] = P[POS, :]
@@ -165,6 +169,33 @@ class NavFilter:
                 P[index, index] = std**2
         self.R_nom = R_n_b @ R_w_b.T
         self.p_w0 = np.asarray(p_w, float).copy()
+
+    def rescale(self, p_w: np.ndarray, R_n_b: np.ndarray, log_scale: float,
+                scale_std: float) -> None:
+        """Replace the scale by an independent estimate (ln, std; climb_scale.py) and put the
+        vehicle where the map says it is at that scale; its velocity is stretched by the same
+        ratio. Dead reckoning at the old scale is dropped, and so is the barometer's offset,
+        which was fitted to it (the next reading re-references it)."""
+        x, P = self.ekf.x, self.ekf.P
+        ratio = float(np.exp(log_scale - x[LOG_SCALE]))
+        m = self.R_nom @ (np.asarray(p_w, float) - self.p_w0)
+        s = float(np.exp(log_scale))
+        J = np.eye(DIM)
+        J[POS, POS] = 0.0
+        J[POS, ANCHOR] = np.eye(3)
+        J[VEL, VEL] *= ratio
+        J[LOG_SCALE, LOG_SCALE] = 0.0
+        P = J @ P @ J.T
+        P[LOG_SCALE, LOG_SCALE] = scale_std**2
+        ds = s * m  # d(position)/d(ln scale)
+        P[POS, :] += np.outer(ds, P[LOG_SCALE, :])
+        P[:, POS] = P[POS, :].T
+        P[POS, POS] += np.outer(ds, ds) * scale_std**2 + np.eye(3) * self.cfg.vo_position_std_m**2
+        self.ekf.P = 0.5 * (P + P.T)
+        x[POS] = x[ANCHOR] + s * m - R_n_b @ self.lever
+        x[VEL] *= ratio
+        x[LOG_SCALE] = log_scale
+        self.has_baro = False
 
     def reanchor(self, p_w: np.ndarray, cov_n: np.ndarray) -> None:
         """Move the anchor to where the map puts the camera now (tracker position p_w, its
