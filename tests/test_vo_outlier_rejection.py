@@ -100,6 +100,21 @@ def _ate(cam, frames, gt, rejection: bool) -> tuple[float, int]:
     return evaluate(gt, est, "sim3").ate_rmse_m, len(t)
 
 
+def _poses(cam, frames, seed: int) -> np.ndarray:
+    """Every pose the tracker reports over the frames, with outlier rejection seeded by seed."""
+    tracker = Tracker(cam, TrackerConfig(outlier_rejection=True, seed=seed))
+    results = (tracker.process(image, stamp) for stamp, image in frames)
+    return np.array([r.T_w_c for r in results if r.has_pose])
+
+
+def test_a_seeded_run_repeats_bit_for_bit(flights):
+    cam, _, busy, _ = flights
+    frames = busy[:70]
+    first = _poses(cam, frames, 0)
+    assert len(first) > 30
+    assert np.array_equal(first, _poses(cam, frames, 0))
+
+
 def test_rejection_keeps_a_moving_object_out_of_the_pose(flights):
     cam, calm, busy, gt = flights
     calm_ate, _ = _ate(cam, calm, gt, True)
@@ -133,13 +148,14 @@ def test_rejection_keeps_people_who_walk_off_out_of_the_pose():
     assert tracked >= 0.9 * frames
     # measured at 320x240: 0.0240 m with rejection, 0.0110 m on the empty square (2.2x; seeds
     # 1, 2: 1.75x, 3.8x) and 0.111 m without rejection (4.6x worse). Issue #5 asks for 1.5x of
-    # the empty square: not met (at 640x480 2.9x: 0.0077 vs 0.0027 m; 0.043 m without). The
-    # cause is not outliers (dropping every match on a person pixel, ground truth, leaves
-    # 0.026/0.023/0.039 m for seeds 0-2) but the ground the group stood on: no keyframe saw it
-    # with parallax, so once uncovered during the hold it has only candidates of unknown depth
-    # (sigma/rho 0.7-0.9, 10-20% off), while 9-17 converged points stay in view (27-43 on the
-    # empty square; every converged one within 5% of its true depth); poses jitter by 20-90 mm
-    # and the hold's keyframes pass that on. The walkers ATE is chaotic: the same change can
-    # move one seed by 2-3x either way.
+    # the empty square: not met (at 640x480 2.9x: 0.0077 vs 0.0027 m; 0.043 m without; over
+    # world seeds 0-2 x tracker seeds 0-2 x both sizes the geometric mean is 2.7x at 320x240 and
+    # 3.4x at 640x480). The cause is not outliers (dropping every match on a person pixel,
+    # ground truth, leaves 0.026/0.023/0.039 m for seeds 0-2) but the ground the group stood
+    # on: no keyframe saw it with parallax, so once uncovered during the hold it has only
+    # candidates of unknown depth, while 20 converged inliers stay in view (32 on the empty
+    # square); the pose error during the hold is 35 vs 14 mm with the same point spread and pose
+    # covariance, and the hold's keyframes pass the bias on. Runs repeat bit for bit, but any
+    # change to the tracker moves single seeds by 2-3x either way: judge changes over seeds.
     assert with_rejection <= 2.5 * calm
     assert with_rejection < 0.35 * without

@@ -140,7 +140,8 @@ class TrackerConfig:
     # a new candidate no keyframe matched (ground uncovered by people who stood on it in every
     # earlier keyframe) starts at the depth of the plane through the keyframe's converged
     # points, +- this fraction of its inverse depth, when that plane holds seed_plane_min_fit
-    # of them to within 2% of their depth (0: such candidates are dropped, as in the thesis)
+    # of them to within 2% of their depth (0: such candidates are dropped, as in the thesis;
+    # off because at 640x480 it made survey-down and hover-down 2-4x worse, README)
     seed_plane_sigma: float = 0.0
     seed_plane_min_fit: float = 0.9
     epipolar_margin_px: float = 2.0
