@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import csr_matrix
+from scipy.spatial.transform import Rotation
 
 from calib.camera import CameraModel
 from vo.config import TrackerConfig
@@ -54,6 +55,10 @@ class Problem:
     obs_xy: np.ndarray  # (N, 2) normalised image coordinates
     obs_scale: np.ndarray  # focal / 2^level: errors in pixels at the observation's level
     obs_slot: np.ndarray  # keyframe slot of each observation (identifies it in map.obs)
+    # (n_free, 6, 6) square root of each free keyframe's tracking information (zero: none)
+    # and (n_free, 6) the twist from its tracked pose to T0: pose prior residuals U (x + d)
+    pose_sqrt_info: np.ndarray | None = None
+    pose_offset: np.ndarray | None = None
 
     @property
     def n_params(self) -> int:
@@ -101,13 +106,43 @@ def build_problem(map_: Map, slot: int, camera: CameraModel,
     pt_index = np.full(pts.capacity, -1, np.int64)
     pt_index[ids] = np.arange(len(ids))
     f = camera.unproject(obs.uv[rows])
+    sqrt_info, offset = (pose_priors([map_.keyframes[s] for s in free], camera)
+                         if config.ba_keyframe_prior else (None, None))
     return Problem(
         slots=slots, n_free=len(free), T0=map_.kf_T_c_w[slots].copy(), points=ids,
         host=index[pts.host[ids]], f=pts.f[ids].copy(), rho0=pts.rho[ids].copy(),
         prior_w=1.0 / (config.ba_depth_prior_inflation * pts.sigma[ids]),
         obs_kf=index[obs.kf[rows]], obs_pt=pt_index[obs.point[rows]],
         obs_xy=f[:, :2] / f[:, 2:], obs_scale=np.sqrt(camera.fx * camera.fy)
-        / 2.0 ** obs.level[rows], obs_slot=obs.kf[rows].copy())
+        / 2.0 ** obs.level[rows], obs_slot=obs.kf[rows].copy(), pose_sqrt_info=sqrt_info,
+        pose_offset=offset)
+
+
+def pose_priors(keyframes: list, camera: CameraModel) -> tuple[np.ndarray, np.ndarray]:
+    """Priors on free keyframes from tracking: (n, 6, 6) square roots of the information
+    of each keyframe's tracked pose (all its matches, in BA units: pixels at the match's
+    level, unit weight), and (n, 6) the twist from the tracked pose to the current one
+    (first order). A keyframe without a tracked pose (the initial map's) gets none. The BA
+    sees a keyframe only through the converged points with several views, often 20-60 of
+    its 100-200 matches; without the rest it moved free keyframes along their weakly
+    determined tilt-shift direction, away from ground truth (survey-down: by 0.1 m and
+    0.5 deg where tracking had 0.01 m, 0.1 deg, also with the fixed keyframes and depth
+    priors at ground truth)."""
+    focal2 = camera.fx * camera.fy
+    sqrt_info = np.zeros((len(keyframes), 6, 6))
+    offset = np.zeros((len(keyframes), 6))
+    for k, kf in enumerate(keyframes):
+        info = getattr(kf, "pose_info", None)
+        if info is None:
+            continue
+        try:
+            sqrt_info[k] = np.linalg.cholesky(info * focal2).T
+        except np.linalg.LinAlgError:
+            continue
+        D = kf.T_c_w @ inv_se3(kf.T_c_w_tracked)
+        offset[k, :3] = D[:3, 3]
+        offset[k, 3:] = Rotation.from_matrix(D[:3, :3]).as_rotvec()
+    return sqrt_info, offset
 
 
 def unpack(p: Problem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -139,7 +174,15 @@ def residuals(x: np.ndarray, p: Problem, keep: np.ndarray) -> np.ndarray:
     """Reprojection errors of the kept observations, then the depth priors."""
     T, rho = unpack(p, x)
     return np.concatenate((reprojection_errors(p, T, rho, keep).ravel(),
-                           (rho - p.rho0) * p.prior_w))
+                           (rho - p.rho0) * p.prior_w, _pose_prior_residuals(p, x)))
+
+
+def _pose_prior_residuals(p: Problem, x: np.ndarray) -> np.ndarray:
+    """U_k (x_k + d_k) of every free keyframe with a pose prior (none: empty)."""
+    if p.pose_sqrt_info is None:
+        return np.zeros(0)
+    twist = x[:6 * p.n_free].reshape(p.n_free, 6) + p.pose_offset
+    return np.einsum("kij,kj->ki", p.pose_sqrt_info, twist).ravel()
 
 
 def jacobian(x: np.ndarray, p: Problem, keep: np.ndarray) -> csr_matrix:
@@ -180,8 +223,16 @@ def jacobian(x: np.ndarray, p: Problem, keep: np.ndarray) -> csr_matrix:
     rows.append(2 * len(kf) + np.arange(n_points))
     cols.append(6 * p.n_free + np.arange(n_points))
     vals.append(p.prior_w)
+    n_rows = 2 * len(kf) + n_points
+    if p.pose_sqrt_info is not None:
+        r, c = np.meshgrid(np.arange(6), np.arange(6), indexing="ij")
+        k = np.arange(p.n_free)[:, None, None]
+        rows.append((n_rows + 6 * k + r).ravel())
+        cols.append((6 * k + c).ravel())
+        vals.append(p.pose_sqrt_info.ravel())
+        n_rows += 6 * p.n_free
     return csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                      shape=(2 * len(kf) + n_points, p.n_params))
+                      shape=(n_rows, p.n_params))
 
 
 def _skew(v: np.ndarray) -> np.ndarray:

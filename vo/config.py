@@ -111,6 +111,9 @@ class TrackerConfig:
     # window is below; with 0 its 6-7 BAs take ATE 0.054/0.083/0.053 -> 0.23/0.25/0.23 m,
     # tracker seeds 0/1/2)
     ba_min_rms_px: float = 0.5
+    # each free keyframe's tracked pose is a prior with the information of all its matches
+    # (bundle_adjustment.pose_priors)
+    ba_keyframe_prior: bool = True
     # each point's depth filter estimate is a prior with the filter's sigma times this
     ba_depth_prior_inflation: float = 1.0
     # scipy least_squares method, all with the analytic Jacobian: 'trf' or 'dogbox' (sparse;
