@@ -96,8 +96,7 @@ def test_jacobian_with_pose_priors_matches_central_differences():
     p, _, _, _ = _problem(np.random.default_rng(0))
     rng = np.random.default_rng(2)
     U = np.triu(rng.normal(0, 50.0, (p.n_free, 6, 6)))
-    p = ba.Problem(**{**p.__dict__, "pose_sqrt_info": U,
-                      "pose_offset": rng.normal(0, 0.01, (p.n_free, 6))})
+    p = ba.Problem(**{**p.__dict__, "pose_sqrt_info": U})
     x = rng.normal(0, 0.05, p.n_params)
     keep = np.ones(len(p.obs_kf), bool)
     J = ba.jacobian(x, p, keep)
@@ -134,7 +133,7 @@ def test_a_tracked_keyframe_seen_through_few_points_keeps_its_pose():
     alone = ba.Problem(**base)
     U = np.zeros((2, 6, 6))
     U[0] = np.linalg.cholesky(_tracking_information(T_true[0], P) * FOCAL ** 2).T
-    held = ba.Problem(**{**base, "pose_sqrt_info": U, "pose_offset": np.zeros((2, 6))})
+    held = ba.Problem(**{**base, "pose_sqrt_info": U})
     off = [_pose_error(ba.solve(q)[0][0], T_true[0]) for q in (alone, held)]
     assert off[1] < 0.5 * off[0]
 
@@ -275,3 +274,21 @@ def test_the_trackers_last_frame_follows_a_bundle_adjustment():
     before = keyframe.T_c_w.copy()
     tracker._follow_ba({4: (np.eye(4), exp_se3(np.full(6, 0.01)))})
     assert np.array_equal(keyframe.T_c_w, before)
+
+
+def test_free_keyframes_bring_their_tracking_information():
+    """A tracked keyframe's pose information becomes its prior (in pixels); the initial map's
+    keyframes (not tracked) get none; the prior can be switched off."""
+    map_, T_true, config = _map(np.random.default_rng(4), {})
+    P = map_.points.pos_w[map_.keyframes[3].feat_point]
+    map_.keyframes[3].pose_info = _tracking_information(T_true[3], P)
+    p = ba.build_problem(map_, 3, CAMERA, config)
+    free = p.slots[:p.n_free].tolist()
+    assert 3 in free and 4 in free
+    U = p.pose_sqrt_info
+    info = map_.keyframes[3].pose_info * CAMERA.fx * CAMERA.fy
+    np.testing.assert_allclose(U[free.index(3)].T @ U[free.index(3)], info,
+                               atol=1e-9 * np.abs(info).max())
+    assert not U[free.index(4)].any()
+    config.ba_keyframe_prior = False
+    assert ba.build_problem(map_, 3, CAMERA, config).pose_sqrt_info is None

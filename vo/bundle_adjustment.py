@@ -26,7 +26,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import csr_matrix
-from scipy.spatial.transform import Rotation
 
 from calib.camera import CameraModel
 from vo.config import TrackerConfig
@@ -55,10 +54,9 @@ class Problem:
     obs_xy: np.ndarray  # (N, 2) normalised image coordinates
     obs_scale: np.ndarray  # focal / 2^level: errors in pixels at the observation's level
     obs_slot: np.ndarray  # keyframe slot of each observation (identifies it in map.obs)
-    # (n_free, 6, 6) square root of each free keyframe's tracking information (zero: none)
-    # and (n_free, 6) the twist from its tracked pose to T0: pose prior residuals U (x + d)
+    # (n_free, 6, 6) square root U of each free keyframe's tracking information (zero:
+    # none): the pose prior residuals are U x, x the keyframe's twist away from T0
     pose_sqrt_info: np.ndarray | None = None
-    pose_offset: np.ndarray | None = None
 
     @property
     def n_params(self) -> int:
@@ -106,43 +104,41 @@ def build_problem(map_: Map, slot: int, camera: CameraModel,
     pt_index = np.full(pts.capacity, -1, np.int64)
     pt_index[ids] = np.arange(len(ids))
     f = camera.unproject(obs.uv[rows])
-    sqrt_info, offset = (pose_priors([map_.keyframes[s] for s in free], camera)
-                         if config.ba_keyframe_prior else (None, None))
+    sqrt_info = (pose_priors([map_.keyframes[s] for s in free], camera)
+                 if config.ba_keyframe_prior else None)
     return Problem(
         slots=slots, n_free=len(free), T0=map_.kf_T_c_w[slots].copy(), points=ids,
         host=index[pts.host[ids]], f=pts.f[ids].copy(), rho0=pts.rho[ids].copy(),
         prior_w=1.0 / (config.ba_depth_prior_inflation * pts.sigma[ids]),
         obs_kf=index[obs.kf[rows]], obs_pt=pt_index[obs.point[rows]],
         obs_xy=f[:, :2] / f[:, 2:], obs_scale=np.sqrt(camera.fx * camera.fy)
-        / 2.0 ** obs.level[rows], obs_slot=obs.kf[rows].copy(), pose_sqrt_info=sqrt_info,
-        pose_offset=offset)
+        / 2.0 ** obs.level[rows], obs_slot=obs.kf[rows].copy(), pose_sqrt_info=sqrt_info)
 
 
-def pose_priors(keyframes: list, camera: CameraModel) -> tuple[np.ndarray, np.ndarray]:
-    """Priors on free keyframes from tracking: (n, 6, 6) square roots of the information
-    of each keyframe's tracked pose (all its matches, in BA units: pixels at the match's
-    level, unit weight), and (n, 6) the twist from the tracked pose to the current one
-    (first order). A keyframe without a tracked pose (the initial map's) gets none. The BA
-    sees a keyframe only through the converged points with several views, often 20-60 of
-    its 100-200 matches; without the rest it moved free keyframes along their weakly
-    determined tilt-shift direction, away from ground truth (survey-down: by 0.1 m and
-    0.5 deg where tracking had 0.01 m, 0.1 deg, also with the fixed keyframes and depth
-    priors at ground truth)."""
+def pose_priors(keyframes: list, camera: CameraModel) -> np.ndarray:
+    """Priors on free keyframes from tracking: (n, 6, 6) square roots of the information of
+    each keyframe's tracked pose (all its matches, in BA units: pixels at the match's level,
+    unit weight), centred on its current pose. A keyframe without a tracked pose (the
+    initial map's) gets none (zeros).
+
+    Why: the BA sees a keyframe only through the converged points with several views, often
+    20-60 of its 100-200 matches. Without the rest it moved free keyframes along their weakly
+    determined tilt-shift direction, away from ground truth (survey-down: 0.01 -> 0.1 m,
+    0.1 -> 0.5 deg), also with the fixed keyframes and depth priors at ground truth, where
+    the observations' residuals were sub-pixel (rms 0.15-0.37 px): a few 0.5-1 px matches
+    among 0.1 px ones pulled them. Centred on the current pose, not the tracked one: a
+    keyframe a BA moved keeps that move (its map moved with it; kitti00 tracked-pose centre:
+    lost, 17.6 / 18.8 m on seeds 1 / 2)."""
     focal2 = camera.fx * camera.fy
     sqrt_info = np.zeros((len(keyframes), 6, 6))
-    offset = np.zeros((len(keyframes), 6))
     for k, kf in enumerate(keyframes):
-        info = getattr(kf, "pose_info", None)
-        if info is None:
+        if kf.pose_info is None:
             continue
         try:
-            sqrt_info[k] = np.linalg.cholesky(info * focal2).T
+            sqrt_info[k] = np.linalg.cholesky(kf.pose_info * focal2).T
         except np.linalg.LinAlgError:
             continue
-        D = kf.T_c_w @ inv_se3(kf.T_c_w_tracked)
-        offset[k, :3] = D[:3, 3]
-        offset[k, 3:] = Rotation.from_matrix(D[:3, :3]).as_rotvec()
-    return sqrt_info, offset
+    return sqrt_info
 
 
 def unpack(p: Problem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -178,10 +174,10 @@ def residuals(x: np.ndarray, p: Problem, keep: np.ndarray) -> np.ndarray:
 
 
 def _pose_prior_residuals(p: Problem, x: np.ndarray) -> np.ndarray:
-    """U_k (x_k + d_k) of every free keyframe with a pose prior (none: empty)."""
+    """U_k x_k of every free keyframe (empty without pose priors)."""
     if p.pose_sqrt_info is None:
         return np.zeros(0)
-    twist = x[:6 * p.n_free].reshape(p.n_free, 6) + p.pose_offset
+    twist = x[:6 * p.n_free].reshape(p.n_free, 6)
     return np.einsum("kij,kj->ki", p.pose_sqrt_info, twist).ravel()
 
 

@@ -125,9 +125,8 @@ class Frame:
         self.n_visible = 0
         self.is_keyframe = False
         self.slot = -1
-        # tracking's pose and the information of its twist (left perturbation of T_c_w,
-        # normalised image plane at unit weight; None: not tracked), a keyframe's BA prior
-        self.T_c_w_tracked = np.eye(4)
+        # the information of the tracked pose's twist (left perturbation of T_c_w, normalised
+        # image plane at unit weight; None: not tracked), a keyframe's BA prior
         self.pose_info: np.ndarray | None = None
 
     @property
