@@ -54,6 +54,9 @@ class Problem:
     obs_xy: np.ndarray  # (N, 2) normalised image coordinates
     obs_scale: np.ndarray  # focal / 2^level: errors in pixels at the observation's level
     obs_slot: np.ndarray  # keyframe slot of each observation (identifies it in map.obs)
+    # (n_free, 6, 6) square root U of each free keyframe's tracking information (zero:
+    # none): the pose prior residuals are U x, x the keyframe's twist away from T0
+    pose_sqrt_info: np.ndarray | None = None
 
     @property
     def n_params(self) -> int:
@@ -101,13 +104,41 @@ def build_problem(map_: Map, slot: int, camera: CameraModel,
     pt_index = np.full(pts.capacity, -1, np.int64)
     pt_index[ids] = np.arange(len(ids))
     f = camera.unproject(obs.uv[rows])
+    sqrt_info = (pose_priors([map_.keyframes[s] for s in free], camera)
+                 if config.ba_keyframe_prior else None)
     return Problem(
         slots=slots, n_free=len(free), T0=map_.kf_T_c_w[slots].copy(), points=ids,
         host=index[pts.host[ids]], f=pts.f[ids].copy(), rho0=pts.rho[ids].copy(),
         prior_w=1.0 / (config.ba_depth_prior_inflation * pts.sigma[ids]),
         obs_kf=index[obs.kf[rows]], obs_pt=pt_index[obs.point[rows]],
         obs_xy=f[:, :2] / f[:, 2:], obs_scale=np.sqrt(camera.fx * camera.fy)
-        / 2.0 ** obs.level[rows], obs_slot=obs.kf[rows].copy())
+        / 2.0 ** obs.level[rows], obs_slot=obs.kf[rows].copy(), pose_sqrt_info=sqrt_info)
+
+
+def pose_priors(keyframes: list, camera: CameraModel) -> np.ndarray:
+    """Priors on free keyframes from tracking: (n, 6, 6) square roots of the information of
+    each keyframe's tracked pose (all its matches, in BA units: pixels at the match's level,
+    unit weight), centred on its current pose. A keyframe without a tracked pose (the
+    initial map's) gets none (zeros).
+
+    Why: the BA sees a keyframe only through the converged points with several views, often
+    20-60 of its 100-200 matches. Without the rest it moved free keyframes along their weakly
+    determined tilt-shift direction, away from ground truth (survey-down: 0.01 -> 0.1 m,
+    0.1 -> 0.5 deg), also with the fixed keyframes and depth priors at ground truth, where
+    the observations' residuals were sub-pixel (rms 0.15-0.37 px): a few 0.5-1 px matches
+    among 0.1 px ones pulled them. Centred on the current pose, not the tracked one: a
+    keyframe a BA moved keeps that move (its map moved with it; kitti00 tracked-pose centre:
+    lost, 17.6 / 18.8 m on seeds 1 / 2)."""
+    focal2 = camera.fx * camera.fy
+    sqrt_info = np.zeros((len(keyframes), 6, 6))
+    for k, kf in enumerate(keyframes):
+        if kf.pose_info is None:
+            continue
+        try:
+            sqrt_info[k] = np.linalg.cholesky(kf.pose_info * focal2).T
+        except np.linalg.LinAlgError:
+            continue
+    return sqrt_info
 
 
 def unpack(p: Problem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -139,7 +170,15 @@ def residuals(x: np.ndarray, p: Problem, keep: np.ndarray) -> np.ndarray:
     """Reprojection errors of the kept observations, then the depth priors."""
     T, rho = unpack(p, x)
     return np.concatenate((reprojection_errors(p, T, rho, keep).ravel(),
-                           (rho - p.rho0) * p.prior_w))
+                           (rho - p.rho0) * p.prior_w, _pose_prior_residuals(p, x)))
+
+
+def _pose_prior_residuals(p: Problem, x: np.ndarray) -> np.ndarray:
+    """U_k x_k of every free keyframe (empty without pose priors)."""
+    if p.pose_sqrt_info is None:
+        return np.zeros(0)
+    twist = x[:6 * p.n_free].reshape(p.n_free, 6)
+    return np.einsum("kij,kj->ki", p.pose_sqrt_info, twist).ravel()
 
 
 def jacobian(x: np.ndarray, p: Problem, keep: np.ndarray) -> csr_matrix:
@@ -180,8 +219,16 @@ def jacobian(x: np.ndarray, p: Problem, keep: np.ndarray) -> csr_matrix:
     rows.append(2 * len(kf) + np.arange(n_points))
     cols.append(6 * p.n_free + np.arange(n_points))
     vals.append(p.prior_w)
+    n_rows = 2 * len(kf) + n_points
+    if p.pose_sqrt_info is not None:
+        r, c = np.meshgrid(np.arange(6), np.arange(6), indexing="ij")
+        k = np.arange(p.n_free)[:, None, None]
+        rows.append((n_rows + 6 * k + r).ravel())
+        cols.append((6 * k + c).ravel())
+        vals.append(p.pose_sqrt_info.ravel())
+        n_rows += 6 * p.n_free
     return csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                      shape=(2 * len(kf) + n_points, p.n_params))
+                      shape=(n_rows, p.n_params))
 
 
 def _skew(v: np.ndarray) -> np.ndarray:

@@ -109,8 +109,15 @@ class TrackerConfig:
     # the BA runs only when the local problem's rms reprojection error is at least this
     # (pixels): below, the keyframes already agree to within the noise (survey-down: every
     # window is below; with 0 its 6-7 BAs take ATE 0.054/0.083/0.053 -> 0.23/0.25/0.23 m,
-    # tracker seeds 0/1/2)
+    # tracker seeds 0/1/2; with ba_keyframe_prior -> 0.11/0.10/0.13 m)
     ba_min_rms_px: float = 0.5
+    # each free keyframe's pose is held by a prior with the information of all its tracked
+    # matches (bundle_adjustment.pose_priors). ATE BA on (off), tracker seeds 0/1/2: kitti00
+    # without 3.01/1.63/0.67, with 0.62/1.00/0.27 (0.26/0.83/0.72); survey-down with
+    # ba_min_rms_px 0 without 0.23/0.25/0.23, with 0.11/0.10/0.13 (0.054/0.083/0.053);
+    # room-handheld without 0.0054/0.0116/0.0190, with 0.0046/0.0103/0.0059 (0.0049/0.0043/
+    # 0.0046): less harm, still not better than no BA on the synthetic flights
+    ba_keyframe_prior: bool = True
     # each point's depth filter estimate is a prior with the filter's sigma times this
     ba_depth_prior_inflation: float = 1.0
     # scipy least_squares method, all with the analytic Jacobian: 'trf' or 'dogbox' (sparse;

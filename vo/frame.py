@@ -125,6 +125,9 @@ class Frame:
         self.n_visible = 0
         self.is_keyframe = False
         self.slot = -1
+        # the information of the tracked pose's twist (left perturbation of T_c_w, normalised
+        # image plane at unit weight; None: not tracked), a keyframe's BA prior
+        self.pose_info: np.ndarray | None = None
 
     @property
     def T_w_c(self) -> np.ndarray:

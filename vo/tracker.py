@@ -367,6 +367,7 @@ class Tracker:
         cfg = self.config
         ids, inlier = m.ids, m.inlier
         frame.T_c_w = orthonormalized(m.T)
+        frame.pose_info = m.H
         frame.set_features(ids[inlier], m.uv[inlier], m.levels[inlier])
         frame.n_visible = m.n_visible
         pts = self.map.points
