@@ -26,6 +26,7 @@ from sim.replay.flight import (
 from sim.replay.harness import ReplayRun, choose_estimator, run_replay
 from sim.replay.report import KEYS, build_report, received_poses, start_aligned, velocity_at
 from sim.sequence import ImuSamples
+from sim.synth.sensors import SensorNoise
 from sim.trajectory import Trajectory
 
 
@@ -63,6 +64,16 @@ def test_a_sequence_brings_its_own_mounting_and_lever_arm():
     assert drone_config(Config(), SimpleNamespace(extras={})) == Config()
     T_b_c[:3, :3] = body_from_camera(Config().mounting)  # a down camera stays the preset
     assert drone_config(Config(), sequence).mounting.preset == "down"
+
+
+def test_a_synthetic_flight_brings_its_sensors_datasheet():
+    noise = SensorNoise(baro_noise=0.4, range_noise_fraction=0.02)
+    config = drone_config(Config(), SimpleNamespace(extras={"sensor_noise": noise}))
+    assert (config.fusion.baro_std_m, config.fusion.range_std_fraction) == (0.4, 0.02)
+    assert config.fusion.heading_bias_std_deg == pytest.approx(np.degrees(noise.yaw_offset))
+    mine = replace(Config(), fusion={"baro_std_m": 0.7})  # what the user set stays theirs
+    config = drone_config(mine, SimpleNamespace(extras={"sensor_noise": noise}))
+    assert (config.fusion.baro_std_m, config.fusion.range_std_fraction) == (0.7, 0.02)
 
 
 def test_rangefinder_only_when_the_flight_stays_in_its_range():

@@ -43,7 +43,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "hand-held datasets")
     parser.add_argument("--config", type=Path, default=None,
                         help="service config (TOML, as for sdvl run); its link and camera "
-                             "source are replaced by the replay's")
+                             "source are replaced by the replay's, its mounting and default "
+                             "sensor noise by a synthetic flight's own")
     parser.add_argument("--without", action="append", default=[],
                         choices=sorted(SENSOR_STREAMS),
                         help="the autopilot does not stream this sensor (repeatable): fusion "

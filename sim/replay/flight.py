@@ -17,6 +17,7 @@ from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation, Slerp
 
 from daemon.config import Config, MountingConfig, replace
+from daemon.fusion.config import FusionConfig
 from daemon.mounting import PRESET_ANGLES_DEG, R_BODY_FORWARD_CAMERA, body_from_camera
 from sim.autopilot.simulator import DEFAULT_STREAMS
 from sim.sequence import ImuSamples
@@ -38,10 +39,19 @@ def is_ned(sequence: object) -> bool:
 
 
 def drone_config(config: Config, sequence: object) -> Config:
-    """The config with the sequence's own camera mounting (`extras["T_b_c"]`: rotation as the
-    mounting, lever arm as the fusion's camera position), so the service describes the drone
-    that flew; unchanged for sequences that do not bring one."""
-    T_b_c = getattr(sequence, "extras", {}).get("T_b_c")
+    """The config describing the drone that flew: the sequence's own camera mounting
+    (`extras["T_b_c"]`: rotation as the mounting, lever arm as the fusion's camera position)
+    and its sensors' datasheet (`extras["sensor_noise"]`, sim.synth.sensors.SensorNoise) as
+    the fusion's sensor noise where `config` keeps the defaults, as a user enters their own;
+    unchanged for sequences that bring neither."""
+    extras = getattr(sequence, "extras", {})
+    noise = extras.get("sensor_noise")
+    if noise is not None:
+        default = FusionConfig()
+        config = replace(config, fusion={
+            key: value for key, value in noise.fusion_settings().items()
+            if getattr(config.fusion, key) == getattr(default, key)})
+    T_b_c = extras.get("T_b_c")
     if T_b_c is None:
         return config
     T_b_c = np.asarray(T_b_c, dtype=np.float64)

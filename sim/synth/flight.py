@@ -15,6 +15,7 @@ Frames: NED world (x north, y east, z down, ground at z = 0), camera x right y d
   - "T_b_c": 4x4 body-from-camera; "world": "NED"; "gravity": m/s^2;
   - "imu_clean": the IMU without noise or bias; "imu_bias": (accel, gyro) true biases (N, 3);
   - "blackouts" / "gaps": (start, end) seconds when the lens is covered / no frames come;
+  - "sensor_noise": the SensorNoise the sensors were made with (their datasheet);
   - "preset", "seed", "path" (the BodyPath, for T_w_b at any time).
 Frame timestamps start at 0 s; frames inside gaps are missing (timestamps jump).
 """
@@ -127,7 +128,7 @@ def synthetic_sequence(preset: str, frames: int | None = None,
               "gravity": GRAVITY, "imu_clean": clean, "imu_bias": (ba, bg),
               "blackouts": [(b.start, b.end) for b in spec.blackouts],
               "gaps": [(g.start, g.end) for g in spec.gaps],
-              "preset": preset, "seed": seed, "path": spec.path}
+              "sensor_noise": noise, "preset": preset, "seed": seed, "path": spec.path}
     return Sequence(preset, camera, times, image_loader=FrameRenderer(spec, camera, times, seed),
                     groundtruth=Trajectory.from_matrices(times, camera_poses(spec, times)),
                     imu=imu, extras=extras)

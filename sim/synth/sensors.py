@@ -37,7 +37,20 @@ class SensorNoise:
     yaw_offset: float = np.radians(1.0)  # rad, std of a constant heading error (compass)
     baro_noise: float = 0.1  # m
     baro_drift: float = 0.02  # m/sqrt(s), random walk
-    range_noise: float = 0.01  # m plus 0.5 % of the distance
+    range_noise: float = 0.01  # m, plus range_noise_fraction of the distance
+    range_noise_fraction: float = 0.005
+
+    def fusion_settings(self) -> dict[str, float]:
+        """The fusion filter's sensor settings (daemon.fusion.config) for this datasheet, as a
+        user would enter their own sensors'. Not the IMU's white noise: the filter's
+        accel_noise also covers its attitude error times g and the held samples."""
+        return {"range_std_m": self.range_noise,
+                "range_std_fraction": self.range_noise_fraction,
+                "baro_std_m": self.baro_noise, "baro_walk_m_per_sqrt_s": self.baro_drift,
+                "attitude_std_deg": float(np.degrees(self.attitude_noise)),
+                "heading_std_deg": float(np.degrees(self.attitude_noise)),
+                "heading_bias_std_deg": float(np.degrees(self.yaw_offset)),
+                "accel_bias_std": self.accel_bias0, "accel_bias_walk": self.accel_bias_walk}
 
 
 def sample_times(duration: float, rate: float) -> np.ndarray:
@@ -92,5 +105,6 @@ def autopilot_sensors(path: BodyPath, scene: Scene, t: np.ndarray, noise: Sensor
     true_range = rangefinder(scene, T, t)
     valid = (true_range > RANGE_MIN) & (true_range < RANGE_MAX)
     dist = np.where(valid, true_range, RANGE_MAX)
-    dist = dist + valid * rng.standard_normal(t.size) * (noise.range_noise + 0.005 * dist)
+    dist = dist + valid * rng.standard_normal(t.size) * (noise.range_noise
+                                                          + noise.range_noise_fraction * dist)
     return SensorSamples(t, attitude, baro, dist, valid)
