@@ -285,7 +285,7 @@ class NavFilter:
         Q[VEL, VEL] = np.eye(3) * q * dt
         if imu:
             Q[BIAS, BIAS] = np.eye(3) * cfg.accel_bias_walk**2 * dt
-        Q[ANCHOR, ANCHOR] = np.eye(3) * (cfg.vo_drift_m_per_sqrt_m**2 * speed
+        Q[ANCHOR, ANCHOR] = np.eye(3) * (cfg.vo_drift_m_per_sqrt_m**2 * horizontal_speed
                                          + cfg.vo_drift_m_per_sqrt_s**2) * dt
         Q[LOG_SCALE, LOG_SCALE] = (cfg.scale_walk_per_sqrt_m**2 * horizontal_speed
                                    + cfg.scale_walk_climb_per_sqrt_m**2 * abs(self.x[5])) * dt
