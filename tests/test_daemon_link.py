@@ -84,10 +84,11 @@ def test_odometry_every_field(udp_run):
         assert np.allclose(pose_cov - np.diag(np.diag(pose_cov)), 0, atol=1e-9)
         vel_cov = np.zeros((6, 6))
         vel_cov[np.triu_indices(6)] = m.velocity_covariance
-        if dt < 1.5 / 30:
-            vel_expected = ([2 * SCALE**2 * 1e-4 / dt**2 + 0.1**2] * 3
-                            + [2e-5 / dt**2 + 0.05**2] * 3)
-            assert np.allclose(np.diag(vel_cov), vel_expected, rtol=1e-3)
+        # two pose errors over the interval from the last frame tracked, which under load may
+        # be one that was not sent: the same interval for both blocks, at most the stamps'
+        interval = np.sqrt(np.concatenate([2 * SCALE**2 * 1e-4 / (np.diag(vel_cov)[:3] - 0.1**2),
+                                           2e-5 / (np.diag(vel_cov)[3:] - 0.05**2)]))
+        assert np.allclose(interval, interval[0], rtol=1e-3) and interval[0] <= dt + 1e-5
         assert all(np.isfinite(v) for v in [*p1, *m.q, m.vx, m.vy, m.vz, *m.pose_covariance])
     assert contiguous >= 0.8 * (len(odo) - 1)
 
