@@ -101,8 +101,8 @@ def test_accuracy_and_never_overconfident(fused) -> None:
 
 @pytest.mark.xfail(reason="issue #7: NEES 0.13 on this 200-frame climb (ATE 0.012 m); whole-"
                           "run lockstep replays with the flight's sensor datasheet, seeds 0-4: "
-                          "hover-down 0.60/1.04/0.13/0.49/0.56, survey-down 0.40/0.24/1.05/"
-                          "0.64/0.60: cautious for seeds the tracker follows closely, and a "
+                          "hover-down 0.82/1.45/0.18/0.54/0.64, survey-down 0.51/0.31/1.20/"
+                          "0.67/0.58: cautious for seeds the tracker follows closely, and a "
                           "flight's one compass bias draw weighs on its whole run", strict=True)
 def test_consistent_not_overcautious(fused) -> None:
     _ate, nees, _finite = _errors_and_nees(fused)

@@ -71,6 +71,8 @@ def test_a_synthetic_flight_brings_its_sensors_datasheet():
     config = drone_config(Config(), SimpleNamespace(extras={"sensor_noise": noise}))
     assert (config.fusion.baro_std_m, config.fusion.range_std_fraction) == (0.4, 0.02)
     assert config.fusion.heading_bias_std_deg == pytest.approx(np.degrees(noise.yaw_offset))
+    # the accelerometer's and the attitude's noise in the prediction, above the datasheet's own
+    assert noise.accel_noise < config.fusion.accel_noise == noise.prediction_noise() < 0.02
     mine = replace(Config(), fusion={"baro_std_m": 0.7})  # what the user set stays theirs
     config = drone_config(mine, SimpleNamespace(extras={"sensor_noise": noise}))
     assert (config.fusion.baro_std_m, config.fusion.range_std_fraction) == (0.7, 0.02)
