@@ -246,6 +246,7 @@ class FusionEstimator:
             f.segment = frame.segment
             return
         self._climb_scale(t, frame, att)
+        self._accel_scale(t, frame, att)
         factor = inflation(self.cfg, frame.quality)
         coarse = (self.cfg.coarse_inflation
                   if np.sqrt(f.P[LOG_SCALE, LOG_SCALE]) > self.cfg.coarse_scale_std else 1.0)
@@ -283,6 +284,26 @@ class FusionEstimator:
         if fit is not None and fit[1] < std:
             log.info("fusion: scale %.3g m/unit from the climb (+-%.1f%%)", np.exp(fit[0]),
                      100 * fit[1])
+            f.rescale(frame.p_w, att.R_n_b, *fit)
+
+    def _accel_scale(self, t: float, frame: FrameInput, att: object) -> None:
+        """Pair the map's position with the IMU's double integral; until the filter publishes,
+        take the scale from their linear fit (accel_scale.py) once that is good to
+        coarse_scale_std, when it is surer than the filter's coarse scale or more than 3 sigma
+        away from it (the filter's linearised scale has run off while its covariance shrank)."""
+        f, cfg = self.filter, self.cfg
+        if not self._imu_fresh(t):
+            f.motion.interrupt()
+            return
+        f.motion.add_frame(t, frame.p_w, f.R_nom)
+        fit = f.motion.fit()
+        if att is None or f.published or fit is None or not fit[1] <= cfg.coarse_scale_std:
+            return
+        std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
+        if ((cfg.coarse_scale_std < std and fit[1] < std)
+                or abs(fit[0] - f.x[LOG_SCALE]) > 3.0 * np.hypot(fit[1], std)):
+            log.info("fusion: scale %.3g m/unit from the IMU (+-%.1f%%), the filter had %.3g "
+                     "(+-%.1f%%)", np.exp(fit[0]), 100 * fit[1], f.scale, 100 * std)
             f.rescale(frame.p_w, att.R_n_b, *fit)
 
     def _scene_height(self, t: float, frame: FrameInput, R_n_b: np.ndarray) -> None:

@@ -28,6 +28,7 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.spatial.transform import Rotation
 
+from daemon.fusion.accel_scale import AccelScale
 from daemon.fusion.climb_scale import ClimbScale
 from daemon.fusion.config import FusionConfig
 
@@ -88,6 +89,7 @@ class NavFilter:
         self.origin: np.ndarray | None = None
         self.scene_ne: np.ndarray | None = None  # where the map's height was last fused
         self.climb = ClimbScale()  # the current map's heights against the barometer's
+        self.motion = self._accel_scale()  # its displacement against the IMU's
         self.accel: np.ndarray | None = None  # last IMU specific force, held until the next
         self.t_accel = float("-inf")
         self.rejections = {"range": 0, "baro": 0, "vo": 0}
@@ -108,20 +110,24 @@ class NavFilter:
         """Metres per tracker unit of the current map."""
         return float(np.exp(self.x[LOG_SCALE]))
 
+    def _accel_scale(self) -> AccelScale:
+        cfg = self.cfg
+        return AccelScale(cfg.accel_bias_std, cfg.accel_noise, cfg.vo_position_std_m)
+
     def snapshot(self) -> tuple:
         """Everything needed to continue the filter from here."""
         return (self.t, self.x.copy(), self.P.copy(), self.R_nom.copy(), self.p_w0.copy(),
                 self.has_ground, self.has_baro, dict(self.rejections), self.segment,
                 self.accel, self.t_accel, self.realigns, self.published, self.origin,
-                self.scene_ne, self.climb.copy())
+                self.scene_ne, self.climb.copy(), self.motion.copy())
 
     def restore(self, snap: tuple) -> None:
         """Go back to a snapshot."""
         (self.t, x, P, R_nom, p_w0, self.has_ground, self.has_baro, rejections, self.segment,
          self.accel, self.t_accel, self.realigns, self.published, self.origin,
-         self.scene_ne, climb) = snap
+         self.scene_ne, climb, motion) = snap
         self.ekf.x, self.ekf.P = x.copy(), P.copy()
-        self.climb = climb.copy()
+        self.climb, self.motion = climb.copy(), motion.copy()
         self.R_nom, self.p_w0, self.rejections = R_nom.copy(), p_w0.copy(), dict(rejections)
 
     # --- initialisation -----------------------------------------------------------------------
@@ -149,6 +155,7 @@ class NavFilter:
         with `scale_std` (default: the prior's)."""
         self.published = False
         self.climb = ClimbScale()
+        self.motion = self._accel_scale()
         x, P = self.ekf.x, self.ekf.P
         x[ANCHOR] = x[POS] + R_n_b @ self.lever
         P[ANCHOR, :] = P[POS, :]
@@ -172,9 +179,10 @@ class NavFilter:
 
     def rescale(self, p_w: np.ndarray, R_n_b: np.ndarray, log_scale: float,
                 scale_std: float) -> None:
-        """Replace the scale by an independent estimate (ln, std; climb_scale.py) and put the
-        vehicle where the map says it is at that scale; its velocity is stretched by the same
-        ratio. Dead reckoning at the old scale is dropped, and so is the barometer's offset,
+        """Replace the scale by an independent estimate (ln, std; climb_scale.py,
+        accel_scale.py) and put the vehicle where the map says it is at that scale; its
+        velocity is stretched by the same ratio, and both carry the new scale's error. Dead
+        reckoning at the old scale is dropped, and so is the barometer's offset,
         which was fitted to it (the next reading re-references it)."""
         x, P = self.ekf.x, self.ekf.P
         ratio = float(np.exp(log_scale - x[LOG_SCALE]))
@@ -187,10 +195,10 @@ class NavFilter:
         J[LOG_SCALE, LOG_SCALE] = 0.0
         P = J @ P @ J.T
         P[LOG_SCALE, LOG_SCALE] = scale_std**2
-        ds = s * m  # d(position)/d(ln scale)
-        P[POS, :] += np.outer(ds, P[LOG_SCALE, :])
-        P[:, POS] = P[POS, :].T
-        P[POS, POS] += np.outer(ds, ds) * scale_std**2 + np.eye(3) * self.cfg.vo_position_std_m**2
+        d = np.zeros(DIM)  # how the new position and velocity move with the new ln(scale)
+        d[POS], d[VEL], d[LOG_SCALE] = s * m, ratio * x[VEL], 1.0
+        P += (np.outer(d, d) - np.diag(np.eye(DIM)[LOG_SCALE])) * scale_std**2
+        P[POS, POS] += np.eye(3) * self.cfg.vo_position_std_m**2
         self.ekf.P = 0.5 * (P + P.T)
         x[POS] = x[ANCHOR] + s * m - R_n_b @ self.lever
         x[VEL] *= ratio
@@ -269,6 +277,10 @@ class NavFilter:
         horizontal_speed = float(np.linalg.norm(x[3:5]))
         x[POS] += x[VEL] * dt + 0.5 * acc * dt**2
         x[VEL] += acc * dt
+        if accel is not None and R_n_b is not None:
+            self.motion.integrate(dt, acc)
+        else:
+            self.motion.interrupt()
         x[VO_TILT] *= self._tilt_decay(dt)
         self.ekf.F = F
         self.ekf.Q = self._process_noise(dt, sigma, speed, horizontal_speed, accel is not None)

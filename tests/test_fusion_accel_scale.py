@@ -1,0 +1,68 @@
+"""The map's scale from the IMU (daemon/fusion/accel_scale.py) against motions with a known
+scale."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from daemon.fusion.accel_scale import AccelScale
+
+IMU_DT = 0.005
+FRAME_EVERY = 7  # IMU steps per frame (about 29 fps)
+
+
+def fly(acceleration, seconds: float, scale: float, R_n_w: np.ndarray,
+        fit: AccelScale, v0=(1.0, -0.5, 0.2), frame_noise: float = 0.0,
+        rng: np.random.Generator | None = None) -> None:
+    """Feed `fit` the IMU (exact) and the map's positions (scale m/unit, R_n_w) of a flight
+    with acceleration(t) in N."""
+    p, v = np.zeros(3), np.asarray(v0, float)
+    for k in range(int(seconds / IMU_DT)):
+        t = k * IMU_DT
+        if k % FRAME_EVERY == 0:
+            noise = rng.normal(0, frame_noise, 3) if rng is not None else 0.0
+            fit.add_frame(t, R_n_w.T @ (p + noise) / scale + 5.0, R_n_w)
+        a = np.asarray(acceleration(t), float)
+        fit.integrate(IMU_DT, a)
+        p = p + v * IMU_DT + 0.5 * a * IMU_DT**2
+        v = v + a * IMU_DT
+
+
+def turn(t: float) -> np.ndarray:
+    return np.array([np.sin(1.3 * t), np.cos(0.7 * t), 0.3 * np.sin(2.1 * t)])
+
+
+def test_exact_motion_gives_the_scale() -> None:
+    R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    fit = AccelScale(accel_bias_std=0.1, accel_noise=0.01, position_std_m=0.01)
+    fly(turn, 6.0, 12.5, R, fit)
+    ln_s, std = fit.fit()
+    assert abs(ln_s - np.log(12.5)) < 1e-6
+    assert std < 0.05  # the modelled noise
+
+
+def test_constant_velocity_tells_nothing() -> None:
+    fit = AccelScale(accel_bias_std=0.1, accel_noise=0.01, position_std_m=0.01)
+    fly(lambda t: np.zeros(3), 6.0, 3.0, np.eye(3), fit)
+    assert fit.fit() is None
+
+
+def test_noisy_map_std_covers_the_error() -> None:
+    rng = np.random.default_rng(3)
+    errors = []
+    for _ in range(20):
+        fit = AccelScale(accel_bias_std=0.1, accel_noise=0.01, position_std_m=0.05)
+        fly(turn, 4.0, 2.0, np.eye(3), fit, frame_noise=0.05, rng=rng)
+        ln_s, std = fit.fit()
+        errors.append((ln_s - np.log(2.0)) / std)
+    assert 0.3 < np.sqrt(np.mean(np.square(errors))) < 2.0
+
+
+def test_a_gap_in_the_imu_starts_a_new_window_and_copies_are_independent() -> None:
+    fit = AccelScale(accel_bias_std=0.1, accel_noise=0.01, position_std_m=0.01)
+    fly(turn, 1.0, 4.0, np.eye(3), fit)
+    before = fit.copy()
+    fit.interrupt()
+    fly(turn, 3.0, 4.0, np.eye(3), fit)
+    assert abs(fit.fit()[0] - np.log(4.0)) < 1e-6
+    assert before.frames < fit.frames and before.windows == 0
