@@ -34,7 +34,7 @@ def turn(t: float) -> np.ndarray:
 
 def test_exact_motion_gives_the_scale() -> None:
     R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-    fit = AccelScale(accel_bias_std=0.1, accel_noise=0.01, position_std_m=0.01)
+    fit = AccelScale(accel_noise=0.01, position_std_m=0.01)
     fly(turn, 6.0, 12.5, R, fit)
     ln_s, std = fit.fit()
     assert abs(ln_s - np.log(12.5)) < 1e-6
@@ -42,7 +42,7 @@ def test_exact_motion_gives_the_scale() -> None:
 
 
 def test_constant_velocity_tells_nothing() -> None:
-    fit = AccelScale(accel_bias_std=0.1, accel_noise=0.01, position_std_m=0.01)
+    fit = AccelScale(accel_noise=0.01, position_std_m=0.01)
     fly(lambda t: np.zeros(3), 6.0, 3.0, np.eye(3), fit)
     assert fit.fit() is None
 
@@ -51,7 +51,7 @@ def test_noisy_map_std_covers_the_error() -> None:
     rng = np.random.default_rng(3)
     errors = []
     for _ in range(20):
-        fit = AccelScale(accel_bias_std=0.1, accel_noise=0.01, position_std_m=0.05)
+        fit = AccelScale(accel_noise=0.01, position_std_m=0.05)
         fly(turn, 4.0, 2.0, np.eye(3), fit, frame_noise=0.05, rng=rng)
         ln_s, std = fit.fit()
         errors.append((ln_s - np.log(2.0)) / std)
@@ -59,7 +59,7 @@ def test_noisy_map_std_covers_the_error() -> None:
 
 
 def test_a_gap_in_the_imu_starts_a_new_window_and_copies_are_independent() -> None:
-    fit = AccelScale(accel_bias_std=0.1, accel_noise=0.01, position_std_m=0.01)
+    fit = AccelScale(accel_noise=0.01, position_std_m=0.01)
     fly(turn, 1.0, 4.0, np.eye(3), fit)
     before = fit.copy()
     fit.interrupt()

@@ -187,7 +187,8 @@ def test_level_flight_without_imu_takes_the_scale_from_the_maps_height() -> None
 def test_level_flight_without_rangefinder_or_baro_is_not_overconfident(seed: int) -> None:
     """Tracking starts at 8 m as the first leg accelerates: only the IMU tells the scale, the
     EKF starts from the wide prior, 8x off, and its linearised fixes used to settle 10-45 %
-    off, sure to 3 % (NEES 3-2500); the IMU's linear fit (accel_scale.py) restarts it."""
+    off, sure to 3 % (NEES 3-2500); now the scale waits for the IMU's linear fit
+    (accel_scale.py)."""
     tracker = fh.TrackerOptions(start_s=6.0)
     sensors = fh.SensorOptions(rangefinder=False, baro=False)
     score, *_ = fly(fh.survey_flight(legs=2), sensors, tracker, seed=seed)

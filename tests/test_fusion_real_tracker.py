@@ -101,7 +101,7 @@ def test_accuracy_and_never_overconfident(fused) -> None:
 
 @pytest.mark.xfail(reason="issue #7: NEES 0.13 on this 200-frame climb (ATE 0.012 m); whole-"
                           "run lockstep replays with the flight's sensor datasheet, seeds 0-4: "
-                          "hover-down 0.82/1.45/0.18/0.54/0.64, survey-down 0.51/0.31/1.20/"
+                          "hover-down 0.82/1.45/0.18/0.54/0.64, survey-down 0.51/0.31/1.38/"
                           "0.67/0.58: cautious for seeds the tracker follows closely, and a "
                           "flight's one compass bias draw weighs on its whole run", strict=True)
 def test_consistent_not_overcautious(fused) -> None:

@@ -7,11 +7,14 @@ The EKF linearises around its current scale. Starting from the wide prior (no ra
 on survey-down without a rangefinder it published a scale 24 % low, sure to 3 %. Within a window
 starting at time 0, the vehicle's displacement is v0 t + P(t), with P the double integral of the
 IMU's acceleration in N, and the map's displacement m(t) (tracker units, in N) over the scale is
-the same displacement: m(t) = (v0 t + P(t)) / s + c, c the map's error at the window's first
-frame. c and v0 differ per window and are eliminated in closed form; what is left is linear in
-1/s, so no linearisation point is needed, and motion at constant velocity tells nothing, as it
-should. The map is regressed on the IMU, not the other way round: the map's noise would pull a
-fit on it towards zero wherever the motion is nearly uniform.
+the same displacement: m(t) = (v0 t + P(t) - b t^2 / 2) / s + c, with c the map's error at the
+window's first frame and b the accelerometer's bias in N. c and v0 differ per window and are
+eliminated in closed form; what is left is linear in 1/s and b/s, so no linearisation point is
+needed, and motion at constant velocity tells nothing, as it should. The raw accelerometer is
+used, not the filter's bias estimate: a filter whose scale has run off explains the mismatch
+with a bias, and the fit would agree with it. The map is regressed on the IMU, not the other
+way round: the map's noise would pull a fit on it towards zero wherever the motion is nearly
+uniform.
 """
 
 from __future__ import annotations
@@ -20,17 +23,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-WINDOW_S = 2.0  # accelerometer bias error grows as t^2: short windows, each with its own v0
+WINDOW_S = 2.0  # each window has its own offset and v0: short ones follow the map's drift
 
 
 @dataclass
 class _Window:
     """Weighted sums over the frames of one window, per N axis: of the basis (1, t) that the
-    window's own offset and v0 span, and of the map's (m) and the IMU's (P) displacements."""
+    window's own offset and v0 span, and of y = (P, t^2, m): the IMU's displacement, the bias's
+    shape and the map's displacement."""
 
     basis: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))  # sum w b b'
-    data: np.ndarray = field(default_factory=lambda: np.zeros((3, 2, 2)))  # sum w b [P m]
-    cross: np.ndarray = field(default_factory=lambda: np.zeros((3, 2, 2)))  # sum w [P m][P m]'
+    data: np.ndarray = field(default_factory=lambda: np.zeros((3, 2, 3)))  # sum w b y'
+    cross: np.ndarray = field(default_factory=lambda: np.zeros((3, 3, 3)))  # sum w y y'
     frames: int = 0
 
     def copy(self) -> _Window:
@@ -38,48 +42,44 @@ class _Window:
 
     def add(self, t: float, m: np.ndarray, p: np.ndarray, weight: float) -> None:
         b = np.array([1.0, t])
-        y = np.stack([p, m], axis=1)  # (axis, [P, m])
+        y = np.stack([p, np.full(3, t * t), m], axis=1)  # (axis, y)
         self.basis += weight * np.outer(b, b)
         self.data += weight * b[None, :, None] * y[:, None, :]
         self.cross += weight * y[:, :, None] * y[:, None, :]
         self.frames += 1
 
     def normal(self) -> np.ndarray:
-        """[sum P'WP, sum P'Wm, sum m'Wm] with the offset and v0 eliminated (zeros while the
-        window has fewer than three frames)."""
-        if self.frames < 3:
-            return np.zeros(3)
-        left = self.cross - np.einsum("aki,kl,alj->aij", self.data, np.linalg.inv(self.basis),
+        """Per axis, sum y'Wy with the offset and v0 eliminated (zeros while the window has
+        fewer than four frames)."""
+        if self.frames < 4:
+            return np.zeros((3, 3, 3))
+        return self.cross - np.einsum("aki,kl,alj->aij", self.data, np.linalg.inv(self.basis),
                                       self.data)
-        total = left.sum(axis=0)
-        return np.array([total[0, 0], total[0, 1], total[1, 1]])
 
 
 @dataclass
 class AccelScale:
     """The IMU's double integral and the map's position since the current window started."""
 
-    accel_bias_std: float  # m/s^2: the IMU's displacement error grows as bias t^2 / 2
-    accel_noise: float  # m/s^2/sqrt(Hz): and as noise t^1.5 / sqrt(3)
+    accel_noise: float  # m/s^2/sqrt(Hz): the IMU's displacement error grows as t^1.5 / sqrt(3)
     position_std_m: float  # the tracker's, metres
     start_t: float | None = None
     start_p: np.ndarray = field(default_factory=lambda: np.zeros(3))
     v: np.ndarray = field(default_factory=lambda: np.zeros(3))
     p: np.ndarray = field(default_factory=lambda: np.zeros(3))
     window: _Window = field(default_factory=_Window)
-    closed: np.ndarray = field(default_factory=lambda: np.zeros(3))  # summed normal()s
+    closed: np.ndarray = field(default_factory=lambda: np.zeros((3, 3, 3)))  # summed normal()s
     windows: int = 0
     frames: int = 0
 
     def copy(self) -> AccelScale:
         """An independent copy (the filter's snapshots)."""
-        return AccelScale(self.accel_bias_std, self.accel_noise, self.position_std_m,
-                          self.start_t,
+        return AccelScale(self.accel_noise, self.position_std_m, self.start_t,
                           self.start_p.copy(), self.v.copy(), self.p.copy(), self.window.copy(),
                           self.closed.copy(), self.windows, self.frames)
 
     def integrate(self, dt: float, acceleration: np.ndarray) -> None:
-        """The vehicle's acceleration in N (gravity removed) held for dt seconds."""
+        """The accelerometer's specific force in N plus gravity, held for dt seconds."""
         if self.start_t is not None:
             self.p += self.v * dt + 0.5 * acceleration * dt**2
             self.v += acceleration * dt
@@ -99,21 +99,35 @@ class AccelScale:
             self.start_t, self.start_p = t, np.asarray(p_w, float).copy()
             self.v, self.p, self.window = np.zeros(3), np.zeros(3), _Window()
         tau = t - self.start_t
-        sigma2 = ((0.5 * self.accel_bias_std * tau**2) ** 2 + self.accel_noise**2 * tau**3 / 3
-                  + self.position_std_m**2)
+        sigma2 = self.accel_noise**2 * tau**3 / 3 + self.position_std_m**2
         self.window.add(tau, R_n_w @ (np.asarray(p_w, float) - self.start_p), self.p,
                         1.0 / sigma2)
         self.frames += 1
 
     def fit(self) -> tuple[float, float] | None:
         """(ln(scale), its std), or None while the motion so far does not give a positive
-        scale. The std is the modelled noise's, or the residuals' where they are larger."""
-        pp, pm, mm = self.closed + self.window.normal()
-        if not (pp > 0 and pm > 0):
+        scale apart from a bias. The std is the modelled noise's, or the residuals' where they
+        are larger."""
+        sums = self.closed + self.window.normal()  # (axis, y, y), y = (P, t^2, m)
+        N = np.zeros((4, 4))  # unknowns: units per metre, and it times -b/2 per axis
+        r = np.zeros(4)
+        N[0, 0], r[0] = sums[:, 0, 0].sum(), sums[:, 0, 2].sum()
+        N[0, 1:] = N[1:, 0] = sums[:, 0, 1]
+        N[1:, 1:] = np.diag(sums[:, 1, 1])
+        r[1:] = sums[:, 1, 2]
+        if not np.all(np.diag(N) > 0):
             return None
-        units_per_m = pm / pp  # the map regressed on the IMU, whose errors are the smaller
-        dof = 3 * (self.frames - 2 * (self.windows + 1)) - 1  # 3 axes; offset, v0 per window
+        try:
+            cov = np.linalg.inv(N)
+        except np.linalg.LinAlgError:
+            return None
+        theta = cov @ r
+        units_per_m = float(theta[0])
+        if not (units_per_m > 0 and np.isfinite(units_per_m) and cov[0, 0] > 0):
+            return None
+        dof = 3 * (self.frames - 2 * (self.windows + 1)) - 4  # 3 axes; offset, v0 per window
         # the weights are per metre^2: in map units the residuals' variance is units_per_m^2
         # times the modelled one
-        ratio = max(mm - units_per_m * pm, 0.0) / (dof * units_per_m**2) if dof > 0 else 1.0
-        return float(-np.log(units_per_m)), float(np.sqrt(max(ratio, 1.0) / pp))
+        residual = max(float(sums[:, 2, 2].sum() - theta @ r), 0.0)
+        ratio = residual / (dof * units_per_m**2) if dof > 0 else 1.0
+        return float(-np.log(units_per_m)), float(np.sqrt(max(ratio, 1.0) * cov[0, 0]))

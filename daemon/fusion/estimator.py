@@ -265,6 +265,8 @@ class FusionEstimator:
             f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, f.x[LOG_SCALE],
                             float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE])))
             f.rejections["vo"] = 0
+        if f.scale_source == "prior":
+            f.forget_scale()
 
     def _climb_scale(self, t: float, frame: FrameInput, att: object) -> None:
         """Pair the tracker's height with the barometer's; while the filter does not know the
@@ -289,8 +291,9 @@ class FusionEstimator:
     def _accel_scale(self, t: float, frame: FrameInput, att: object) -> None:
         """Pair the map's position with the IMU's double integral; until the filter publishes,
         take the scale from their linear fit (accel_scale.py) once that is good to
-        coarse_scale_std, when it is surer than the filter's coarse scale or more than 3 sigma
-        away from it (the filter's linearised scale has run off while its covariance shrank)."""
+        coarse_scale_std: when it is surer than a scale not given with the map (the wide prior,
+        or an earlier fit), or more than 3 sigma away from the filter's (its linearised scale
+        has run off while its covariance shrank)."""
         f, cfg = self.filter, self.cfg
         if not self._imu_fresh(t):
             f.motion.interrupt()
@@ -300,8 +303,8 @@ class FusionEstimator:
         if att is None or f.published or fit is None or not fit[1] <= cfg.coarse_scale_std:
             return
         std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
-        if ((cfg.coarse_scale_std < std and fit[1] < std)
-                or abs(fit[0] - f.x[LOG_SCALE]) > 3.0 * np.hypot(fit[1], std)):
+        surer = fit[1] < std and f.scale_source != "given"
+        if surer or abs(fit[0] - f.x[LOG_SCALE]) > 3.0 * np.hypot(fit[1], std):
             log.info("fusion: scale %.3g m/unit from the IMU (+-%.1f%%), the filter had %.3g "
                      "(+-%.1f%%)", np.exp(fit[0]), 100 * fit[1], f.scale, 100 * std)
             f.rescale(frame.p_w, att.R_n_b, *fit)
