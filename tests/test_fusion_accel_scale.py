@@ -66,3 +66,10 @@ def test_a_gap_in_the_imu_starts_a_new_window_and_copies_are_independent() -> No
     fly(turn, 3.0, 4.0, np.eye(3), fit)
     assert abs(fit.fit()[0] - np.log(4.0)) < 1e-6
     assert before.frames < fit.frames and before.windows == 0
+
+
+def test_frames_at_one_time_or_without_motion_give_no_fit() -> None:
+    fit = AccelScale(accel_noise=0.01, position_std_m=0.01)
+    for _ in range(10):
+        fit.add_frame(1.0, np.ones(3), np.eye(3))
+    assert fit.fit() is None

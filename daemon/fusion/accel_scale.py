@@ -51,8 +51,8 @@ class _Window:
     def normal(self) -> np.ndarray:
         """Per axis, sum y'Wy with the offset and v0 eliminated (zeros while the window has
         fewer than four frames)."""
-        if self.frames < 4:
-            return np.zeros((3, 3, 3))
+        if self.frames < 4 or not np.linalg.det(self.basis) > 1e-12 * self.basis[0, 0] ** 2:
+            return np.zeros((3, 3, 3))  # too few frames, or all at one time
         return self.cross - np.einsum("aki,kl,alj->aij", self.data, np.linalg.inv(self.basis),
                                       self.data)
 
