@@ -10,11 +10,14 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from pymavlink.dialects.v20 import common as mavlink2
 from scipy.spatial.transform import Rotation
 
 from calib.errors import InputError
 from daemon.config import Config, replace
 from daemon.mounting import body_from_camera
+from sim.autopilot.vehicle import sensor_message
+from sim.datasets.layout import SensorSamples
 from sim.replay.autopilot_process import ReplayVehicle, VisionMessage
 from sim.replay.flight import (
     body_imu,
@@ -107,6 +110,21 @@ def test_recorded_body_imu_replaces_the_derived_one():
     sequence = SimpleNamespace(imu=imu, extras={"imu_frame": "body_frd"})
     assert body_imu(sequence) is imu
     assert body_imu(SimpleNamespace(imu=imu, extras={})) is None
+
+
+def test_recorded_attitude_baro_and_rangefinder_replace_the_derived_ones():
+    clock = multiprocessing.Array("d", [time.monotonic() - 2.0, 2.0])  # at t = 2 s
+    yawed = Rotation.from_euler("z", 0.05).as_quat()  # a compass bias
+    sensors = SensorSamples(np.array([0.0, 2.5, 4.0]), np.array([yawed] * 3),
+                            np.array([1.0, 2.3, 3.0]), np.array([2.0, 1.9, 0.0]),
+                            np.array([True, True, False]))
+    vehicle = ReplayVehicle(line_flight(), clock, None, sensors)
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    assert sensor_message(mav, "ATTITUDE", 0.0, 0, vehicle).yaw == pytest.approx(0.05)
+    assert sensor_message(mav, "DISTANCE_SENSOR", 0.0, 0, vehicle).current_distance == 190
+    assert sensor_message(mav, "ALTITUDE", 0.0, 0, vehicle).altitude_amsl == pytest.approx(2.3)
+    clock[0], clock[1] = time.monotonic() - 3.0, 3.0  # no echo
+    assert sensor_message(mav, "DISTANCE_SENSOR", 0.0, 0, vehicle).current_distance == 4000
 
 
 def odometry(t_capture: float, position, reset: int = 0, v_body=(0.0, 0.0, 0.0),

@@ -67,25 +67,27 @@ def sensor_message(mav: mavlink2.MAVLink, name: str, t: float, boot_ms: int,
     s["rates"] = np.clip(s["rates"], -GYRO_LIMIT, GYRO_LIMIT)
     yaw, pitch, roll = s["rotation"].as_euler("ZYX")
     height = -float(s["position"][2])
+    baro_alt = float(s.get("baro_alt", height))  # a recorded barometer's, when the state has it
     if name == "ATTITUDE":
         return mav.attitude_encode(boot_ms, roll, pitch, yaw, *s["rates"])
     if name == "HIGHRES_IMU":
-        pressure = SEA_LEVEL_HPA * (1 - 2.25577e-5 * height) ** 5.25588
+        pressure = SEA_LEVEL_HPA * (1 - 2.25577e-5 * baro_alt) ** 5.25588
         return mav.highres_imu_encode(boot_ms * 1000, *s["specific_force"], *s["rates"],
-                                      0.2, 0.0, 0.4, pressure, 0.0, height, 25.0, 0x1FFF)
+                                      0.2, 0.0, 0.4, pressure, 0.0, baro_alt, 25.0, 0x1FFF)
     if name == "SCALED_IMU":
         accel_mg = (s["specific_force"] / GRAVITY * 1000).round().astype(int)
         gyro_mrad = (s["rates"] * 1000).round().astype(int)
         return mav.scaled_imu_encode(boot_ms, *accel_mg, *gyro_mrad, 200, 0, 400)
     if name == "DISTANCE_SENSOR":
         tilt = np.cos(roll) * np.cos(pitch)
-        cm = min(max(round(100 * height / max(tilt, 0.1)), 0), MAX_RANGE_CM)
+        distance = s.get("range", height / max(tilt, 0.1))  # a recorded one's, None: no echo
+        cm = 4000 if distance is None else min(max(round(100 * distance), 0), MAX_RANGE_CM)
         return mav.distance_sensor_encode(boot_ms, 20, 4000, cm,
                                           mavlink2.MAV_DISTANCE_SENSOR_LASER, 0,
                                           mavlink2.MAV_SENSOR_ROTATION_PITCH_270, 0)
     if name == "SCALED_PRESSURE":
-        pressure = SEA_LEVEL_HPA * (1 - 2.25577e-5 * height) ** 5.25588
+        pressure = SEA_LEVEL_HPA * (1 - 2.25577e-5 * baro_alt) ** 5.25588
         return mav.scaled_pressure_encode(boot_ms, pressure, 0.0, 2500)
     if name == "ALTITUDE":
-        return mav.altitude_encode(boot_ms * 1000, height, height, height, height, height, height)
+        return mav.altitude_encode(boot_ms * 1000, *[baro_alt] * 6)
     raise ValueError(f"no stream called {name}")

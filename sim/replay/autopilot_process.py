@@ -16,9 +16,11 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from sim.autopilot import SimAutopilot, SimOptions
 from sim.autopilot.vehicle import Vehicle
+from sim.datasets.layout import SensorSamples
 from sim.sequence import ImuSamples
 from sim.trajectory import Trajectory
 
@@ -48,14 +50,17 @@ def padded(trajectory: Trajectory) -> Trajectory:
 
 class ReplayVehicle:
     """A Vehicle whose time is the replay's sequence time instead of the autopilot's uptime;
-    with `imu` (recorded body-FRD samples) the IMU readings are the recorded ones."""
+    with `imu` (recorded body-FRD samples) the IMU readings are the recorded ones, with
+    `sensors` (a synthetic flight's) the attitude, barometer and rangefinder too, noise and
+    compass bias included."""
 
     def __init__(self, trajectory: Trajectory, clock: multiprocessing.Array,
-                 imu: ImuSamples | None = None):
+                 imu: ImuSamples | None = None, sensors: SensorSamples | None = None):
         self.inner = Vehicle(padded(trajectory))
         self.t_first, self.t_last = float(trajectory.t[0]), float(trajectory.t[-1])
         self.clock = clock
         self.imu = imu
+        self.sensors = sensors
 
     def sequence_time(self) -> float:
         """Where in the sequence the vehicle is now."""
@@ -74,6 +79,12 @@ class ReplayVehicle:
             state["specific_force"] = _interp_rows(t, self.imu.t, self.imu.accel)
             if self.imu.gyro is not None:
                 state["rates"] = _interp_rows(t, self.imu.t, self.imu.gyro)
+        if self.sensors is not None:
+            s = self.sensors
+            i = int(np.clip(np.searchsorted(s.t, t), 0, len(s.t) - 1))
+            state["rotation"] = Rotation.from_quat(s.attitude[i])
+            state["baro_alt"] = float(s.baro_alt[i])
+            state["range"] = float(s.range[i]) if s.range_valid[i] else None
         return state
 
 
@@ -82,12 +93,11 @@ def _interp_rows(t: float, times: np.ndarray, values: np.ndarray) -> np.ndarray:
 
 
 def _serve(conn: multiprocessing.connection.Connection, options: SimOptions,
-           trajectory: Trajectory | None, imu: ImuSamples | None,
-           clock: multiprocessing.Array) -> None:
+           trajectory: Trajectory | None, recorded: tuple, clock: multiprocessing.Array) -> None:
     """The child: sends the autopilot's URL, then on request the vision messages received."""
     sim = SimAutopilot(options)
     if trajectory is not None:
-        sim.vehicle = ReplayVehicle(trajectory, clock, imu)
+        sim.vehicle = ReplayVehicle(trajectory, clock, *recorded)
     with sim:
         conn.send(sim.url)
         conn.recv()
@@ -99,11 +109,13 @@ class AutopilotProcess:
     """Start it, connect the service to `url`, call `finish()` for what it received."""
 
     def __init__(self, options: SimOptions | None = None,
-                 trajectory: Trajectory | None = None, imu: ImuSamples | None = None):
+                 trajectory: Trajectory | None = None, imu: ImuSamples | None = None,
+                 sensors: SensorSamples | None = None):
         self.clock = multiprocessing.Array("d", [math.nan, math.nan])
         self._conn, child = multiprocessing.Pipe()
         self._process = multiprocessing.Process(
-            target=_serve, args=(child, options or SimOptions(), trajectory, imu, self.clock),
+            target=_serve, args=(child, options or SimOptions(), trajectory, (imu, sensors),
+                                 self.clock),
             name="sim-autopilot", daemon=True)
         self._process.start()
         self.url: str = self._conn.recv()

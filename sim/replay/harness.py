@@ -211,7 +211,7 @@ def _replay(sequence: object, config: Config, realtime: bool, frames: FirstFrame
               if sequence.groundtruth is not None else None)
     options = SimOptions(streams=sensor_streams("ardupilot", flight, without))
     autopilot = AutopilotProcess(options, None if flight is None else resampled(flight),
-                                 body_imu(sequence))
+                                 body_imu(sequence), sequence.extras.get("sensors"))
     received: list[VisionMessage] = []
     try:
         config = replace(config, mavlink={"link": autopilot.url})
