@@ -1,6 +1,6 @@
 """Fusion on the real SDVL tracker's output: the first 200 frames of the synthetic `hover-down`
-flight (take-off from 1.5 m) tracked by vo.Tracker, the simulated autopilot's messages for the
-same flight fed alongside, as the replay does but without its wall clock.
+flight (take-off from 1.5 m) tracked by vo.Tracker, the flight's recorded autopilot sensors fed
+alongside, as the lockstep replay does (sim/replay/lockstep.py).
 
 The real tracker's position errors are several times the covariance it reports and follow its
 tilt errors; before the filter modelled that, it published for 1.5 s, then rejected every frame
@@ -10,29 +10,17 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from pymavlink.dialects.v20 import common as mavlink2
 
 from daemon.config import Config
 from daemon.fusion.estimator import FusionEstimator
-from sim.autopilot.vehicle import Vehicle, sensor_message
 from sim.datasets import open_sequence
-from sim.replay.flight import drone_config, resampled, sensor_streams, vehicle_trajectory
+from sim.replay.flight import drone_config, sensor_streams, vehicle_trajectory
+from sim.replay.lockstep import BOOT_CLOCK, OUR_CLOCK, autopilot_messages
 from vo.config import TrackerConfig
 from vo.tracker import Tracker
 
 FRAMES = 200
-OFFSET = 1000.0  # our clock minus the autopilot's
-LATENCY = 0.01  # message transport
 RESULT_DELAY = 0.03  # capture -> tracker result
-
-
-def autopilot_messages(flight, streams: dict[str, float], end: float) -> list:
-    """(arrival on our clock, message) for every stream of the flight, in arrival order."""
-    vehicle = Vehicle(resampled(flight))
-    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
-    out = [(t + OFFSET + LATENCY, sensor_message(mav, name, t, round(t * 1000), vehicle))
-           for name, hz in streams.items() for t in np.arange(0.0, end, 1.0 / hz)]
-    return sorted(out, key=lambda item: item[0])
 
 
 @pytest.fixture(scope="module")
@@ -43,15 +31,15 @@ def fused():
     tracker.close()
     config = drone_config(Config(), sequence)
     flight = vehicle_trajectory(sequence.groundtruth, config)
-    messages = autopilot_messages(flight, sensor_streams("ardupilot", flight),
+    messages = autopilot_messages(sequence, flight, sensor_streams("ardupilot", flight),
                                   results[-1].t + 1.0)
     clock = [0.0]
     estimator = FusionEstimator(config.fusion, config.mounting,
                                 now=lambda: clock[0])
-    estimator.set_clock_offset(OFFSET)
+    estimator.set_clock_offset(OUR_CLOCK - BOOT_CLOCK)
     estimates, k = [], 0
     for result in results:
-        t_capture = result.t + OFFSET
+        t_capture = result.t + OUR_CLOCK
         while k < len(messages) and messages[k][0] <= t_capture + RESULT_DELAY:
             clock[0] = messages[k][0]
             estimator.on_autopilot_message(messages[k][1])
@@ -99,11 +87,8 @@ def test_accuracy_and_never_overconfident(fused) -> None:
     assert nees <= 2.0  # a covariance smaller than the errors would mislead the autopilot
 
 
-@pytest.mark.xfail(reason="issue #7: NEES 0.13 on this 200-frame climb (ATE 0.012 m); whole-"
-                          "run lockstep replays with the flight's sensor datasheet, seeds 0-4: "
-                          "hover-down 0.82/1.45/0.18/0.54/0.64, survey-down 0.51/0.31/1.38/"
-                          "0.67/0.58: cautious for seeds the tracker follows closely, and a "
-                          "flight's one compass bias draw weighs on its whole run", strict=True)
 def test_consistent_not_overcautious(fused) -> None:
+    """0.62 with the flight's recorded sensors and datasheet (0.13 when the sensors were exact
+    and the filter was told the hardware defaults)."""
     _ate, nees, _finite = _errors_and_nees(fused)
     assert nees >= 0.5
