@@ -19,7 +19,7 @@ from vo.tracker import Tracker
 FOCAL = 400.0
 
 
-def _problem(rng, n_points=60, outliers=0, sigma_rho=0.02):
+def _problem(rng, n_points=60, outliers=0, sigma_rho=0.02, outlier_px=30.0):
     """Four keyframes looking at points 3-5 m ahead; the first two free, the last two fixed;
     points hosted by keyframe 0 (free) and 2 (fixed), seen by the other three."""
     T_true = np.array([exp_se3(np.array([0.3 * k, 0.05 * k, 0.0, 0.01 * k, -0.02 * k, 0.0]))
@@ -38,7 +38,7 @@ def _problem(rng, n_points=60, outliers=0, sigma_rho=0.02):
     X = np.einsum("nij,nj->ni", T_true[kf, :3, :3], P_true[pt]) + T_true[kf, :3, 3]
     xy = X[:, :2] / X[:, 2:] + rng.normal(0, 0.5 / FOCAL, (len(kf), 2))
     bad = rng.choice(len(kf), outliers, replace=False)
-    xy[bad] += 30.0 / FOCAL
+    xy[bad] += outlier_px / FOCAL
     T0 = T_true.copy()
     for k in range(2):
         T0[k] = exp_se3(rng.normal(0, 0.01, 6)) @ T_true[k]
@@ -171,6 +171,24 @@ def test_outlier_observations_are_dropped():
     assert _rms(p, T, rho, keep) < 0.6
 
 
+def test_residual_sigma_is_the_noise_not_the_outliers():
+    rng = np.random.default_rng(6)
+    e = rng.normal(0, 0.15, (400, 2))
+    e[:20] += 5.0  # 5 % gross outliers
+    assert ba.residual_sigma(e) == pytest.approx(0.15, rel=0.15)
+
+
+def test_the_outlier_cut_at_the_measured_noise_drops_moderate_outliers():
+    """Outliers 2.1 px off among 0.5 px noise pass the 1 px sigma cut (2.45 px) but not
+    the cut at the measured sigma (1.2 px)."""
+    p, _, _, bad = _problem(np.random.default_rng(1), outliers=8, outlier_px=1.5)
+    _, _, keep = ba.solve(p, 10, 10)
+    assert keep[bad].sum() >= 6
+    _, _, keep = ba.solve(p, 10, 10, measured_sigma=True)
+    assert not keep[bad].any()
+    assert keep.sum() >= 0.85 * len(keep)  # chi-square 95%: a few good ones go too
+
+
 def test_stop_ends_the_bundle_adjustment_early():
     p, _, _, _ = _problem(np.random.default_rng(0))
     T, rho, keep = ba.solve(p, 10, 10, stop=lambda: True)
@@ -244,6 +262,24 @@ def test_local_ba_pulls_knocked_keyframes_back_and_the_last_frame_follows():
     assert np.array_equal(map_.kf_T_c_w[0], T_true[0])  # the gauge stays
     # the last frame keeps its pose relative to the keyframe it shares its points with
     np.testing.assert_allclose(followed[0] @ inv_se3(map_.kf_T_c_w[4]), relative, atol=1e-9)
+
+
+def test_points_a_moved_keyframe_hosts_move_with_it():
+    """A candidate hosted by a keyframe the BA moves is not in the problem (not converged);
+    it keeps its place relative to its host (the depth filter's estimate is the host's),
+    so tracking after the BA sees one consistent map."""
+    map_, _, config = _map(np.random.default_rng(3), {2: 60, 3: 60})
+    pts = map_.points
+    f = CAMERA.unproject(np.array([[100.0, 80.0], [200.0, 150.0]]))
+    rho = np.array([0.1, 0.2])
+    cand = pts.add(4, np.array([100.0, 200.0]), np.array([80.0, 150.0]), np.zeros(2, np.int64),
+                   f, rho, 0.1 * rho, 2.0 * rho, 10.0, 10.0, inv_se3(map_.kf_T_c_w[4]))
+    before = pts.pos_w[cand].copy()
+    assert ba.local_ba(map_, 4, CAMERA, config) > 0
+    T = map_.kf_T_c_w[4]
+    assert np.linalg.norm(pts.pos_w[cand] - before, axis=1).min() > 1e-3  # it moved
+    np.testing.assert_allclose(pts.pos_w[cand] @ T[:3, :3].T + T[:3, 3], f / rho[:, None],
+                               atol=1e-9)
 
 
 def test_a_keyframe_the_window_barely_sees_is_held():
