@@ -245,8 +245,8 @@ def solve(p: Problem, first: int = 5, second: int = 10, method: str = "trf",
     """Optimise: `first` iterations, drop chi2(2 dof, 95%) outliers, `second` more. The
     outliers' sigma is 1 px, or with `measured_sigma` the problem's own (residual_sigma of
     the reprojection errors after the first iterations). Returns (T_c_w of the slots,
-    inverse depths, kept-observation mask). `method` is scipy's: 'trf' or 'dogbox' (sparse), 'lm' (MINPACK, dense). Once `stop()` says so (a
-    frame waits for the mapping thread), the BA ends after the current iteration ('lm': the
+    inverse depths, kept-observation mask). `method` is scipy's: 'trf' or 'dogbox' (sparse),
+    'lm' (MINPACK, dense). Once `stop()` says so (a frame waits for the mapping thread), the BA ends after the current iteration ('lm': the
     current round) with the best parameters so far. `pause()` is called before each
     evaluation of the residuals: a tracker holds the BA there while it tracks a frame (the
     solver's Python code would take the GIL from it)."""
