@@ -246,8 +246,9 @@ def solve(p: Problem, first: int = 5, second: int = 10, method: str = "trf",
     outliers' sigma is 1 px, or with `measured_sigma` the problem's own (residual_sigma of
     the reprojection errors after the first iterations). Returns (T_c_w of the slots,
     inverse depths, kept-observation mask). `method` is scipy's: 'trf' or 'dogbox' (sparse),
-    'lm' (MINPACK, dense). Once `stop()` says so (a frame waits for the mapping thread), the BA ends after the current iteration ('lm': the
-    current round) with the best parameters so far. `pause()` is called before each
+    'lm' (MINPACK, dense). Once `stop()` says so (a frame waits for the mapping thread),
+    the BA ends after the current iteration ('lm': the current round) with the best
+    parameters so far. `pause()` is called before each
     evaluation of the residuals: a tracker holds the BA there while it tracks a frame (the
     solver's Python code would take the GIL from it)."""
     x = np.zeros(p.n_params)
