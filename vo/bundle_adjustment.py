@@ -240,15 +240,13 @@ def _skew(v: np.ndarray) -> np.ndarray:
 
 
 def solve(p: Problem, first: int = 5, second: int = 10, method: str = "trf",
-          stop: Callable[[], bool] = lambda: False, pause: Callable[[], None] = lambda: None,
-          measured_sigma: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Optimise: `first` iterations, drop chi2(2 dof, 95%) outliers, `second` more. The
-    outliers' sigma is 1 px, or with `measured_sigma` the problem's own (residual_sigma of
-    the reprojection errors after the first iterations). Returns (T_c_w of the slots,
-    inverse depths, kept-observation mask). `method` is scipy's: 'trf' or 'dogbox' (sparse),
-    'lm' (MINPACK, dense). Once `stop()` says so (a frame waits for the mapping thread),
-    the BA ends after the current iteration ('lm': the current round) with the best
-    parameters so far. `pause()` is called before each
+          stop: Callable[[], bool] = lambda: False, pause: Callable[[], None] = lambda: None
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Optimise: `first` iterations, drop chi2(2 dof, 95%) outliers (1 px sigma), `second`
+    more. Returns (T_c_w of the slots, inverse depths, kept-observation mask). `method` is
+    scipy's: 'trf' or 'dogbox' (sparse), 'lm' (MINPACK, dense). Once `stop()` says so (a
+    frame waits for the mapping thread), the BA ends after the current iteration ('lm': the
+    current round) with the best parameters so far. `pause()` is called before each
     evaluation of the residuals: a tracker holds the BA there while it tracks a frame (the
     solver's Python code would take the GIL from it)."""
     x = np.zeros(p.n_params)
@@ -273,19 +271,9 @@ def solve(p: Problem, first: int = 5, second: int = 10, method: str = "trf",
         if drop:
             T, rho = unpack(p, x)
             e = reprojection_errors(p, T, rho, np.ones_like(keep))
-            sigma = residual_sigma(e) if measured_sigma else 1.0
-            keep = (e ** 2).sum(axis=1) < CHI2_2DOF_95 * sigma ** 2
+            keep = (e ** 2).sum(axis=1) < CHI2_2DOF_95
     T, rho = unpack(p, x)
     return T, rho, keep
-
-
-def residual_sigma(e: np.ndarray) -> float:
-    """Robust standard deviation of reprojection errors e (N, 2): 1.4826 times the median
-    absolute deviation of their components from their median (outliers do not inflate it).
-    For the chi-square outlier cut at the noise the problem has: 1 px sigma cut at 2.45 px
-    where the measured noise was 0.1-0.15 px."""
-    d = np.abs(e - np.median(e, axis=0)).ravel()
-    return max(1.4826 * float(np.median(d)), 1e-9)
 
 
 def _paused(pause: Callable[[], None], fun: Callable) -> Callable:
@@ -359,7 +347,7 @@ def local_ba(map_: Map, slot: int, camera: CameraModel, config: TrackerConfig,
     if problem.rms_px() < config.ba_min_rms_px:
         return 0  # already consistent to within the noise: nothing to gain
     T, rho, keep = solve(problem, config.ba_first_iterations, config.ba_second_iterations,
-                         config.ba_method, stop, pause, config.ba_measured_sigma)
+                         config.ba_method, stop, pause)
     with map_.lock:
         moved_keyframes(apply(map_, problem, T, rho, keep))
     return int(keep.sum())

@@ -118,11 +118,6 @@ class TrackerConfig:
     # room-handheld without 0.0054/0.0116/0.0190, with 0.0046/0.0103/0.0059 (0.0049/0.0043/
     # 0.0046): less harm, still not better than no BA on the synthetic flights
     ba_keyframe_prior: bool = True
-    # the chi-square outlier cut after the first iterations uses the problem's measured
-    # reprojection noise (robust sigma, bundle_adjustment.residual_sigma) instead of 1 px:
-    # residuals at ground truth were 0.15-0.37 px rms, so the 1 px cut (2.45 px) kept
-    # observations 10 sigma off
-    ba_measured_sigma: bool = False
     # each point's depth filter estimate is a prior with the filter's sigma times this
     ba_depth_prior_inflation: float = 1.0
     # scipy least_squares method, all with the analytic Jacobian: 'trf' or 'dogbox' (sparse;
