@@ -246,6 +246,55 @@ def test_local_ba_pulls_knocked_keyframes_back_and_the_last_frame_follows():
     np.testing.assert_allclose(followed[0] @ inv_se3(map_.kf_T_c_w[4]), relative, atol=1e-9)
 
 
+def test_points_a_moved_keyframe_hosts_move_with_it():
+    """A candidate hosted by a keyframe the BA moves is not in the problem (not converged);
+    it keeps its place relative to its host (the depth filter's estimate is the host's),
+    so tracking after the BA sees one consistent map."""
+    map_, _, config = _map(np.random.default_rng(3), {2: 60, 3: 60})
+    pts = map_.points
+    f = CAMERA.unproject(np.array([[100.0, 80.0], [200.0, 150.0]]))
+    rho = np.array([0.1, 0.2])
+    cand = pts.add(4, np.array([100.0, 200.0]), np.array([80.0, 150.0]), np.zeros(2, np.int64),
+                   f, rho, 0.1 * rho, 2.0 * rho, 10.0, 10.0, inv_se3(map_.kf_T_c_w[4]))
+    before = pts.pos_w[cand].copy()
+    assert ba.local_ba(map_, 4, CAMERA, config) > 0
+    T = map_.kf_T_c_w[4]
+    assert np.linalg.norm(pts.pos_w[cand] - before, axis=1).min() > 1e-3  # it moved
+    np.testing.assert_allclose(pts.pos_w[cand] @ T[:3, :3].T + T[:3, 3], f / rho[:, None],
+                               atol=1e-9)
+
+
+def _overconfident_depths(inflation: float) -> tuple[float, float]:
+    """A BA on a map at its true poses (keyframes 2-4 tracked: their tracking information is
+    their prior) whose depth filters all put their points 3 % too near, claiming 1 %: the
+    free keyframes' largest position error (m) and the points' median depth error after."""
+    map_, T_true, config = _map(np.random.default_rng(7), {})
+    pts = map_.points
+    alive = pts.alive()
+    rho_true = pts.rho[alive].copy()  # within 1 % of the truth
+    for k in (2, 3, 4):
+        map_.kf_T_c_w[k] = map_.keyframes[k].T_c_w = T_true[k]
+        seen = map_.keyframes[k].feat_point
+        map_.keyframes[k].pose_info = _tracking_information(T_true[k], pts.pos_w[seen])
+    pts.rho[alive] *= 1.03
+    for h in (0, 1):
+        pts.update_positions(alive[pts.host[alive] == h], inv_se3(T_true[h]))
+    config.ba_min_rms_px = 0.0
+    config.ba_depth_prior_inflation = inflation
+    assert ba.local_ba(map_, 4, CAMERA, config) > 0
+    pose = max(_pose_error(map_.kf_T_c_w[s], T_true[s]) for s in (2, 3, 4))
+    return pose, float(np.median(np.abs(pts.rho[alive] / rho_true - 1)))
+
+
+def test_inflated_depth_priors_let_the_views_correct_the_points_not_the_keyframes():
+    """Held to an overconfident depth filter, the BA moves the keyframes to fit its wrong
+    depths; a looser prior lets the views correct the depths and keeps the keyframes."""
+    pose1, depth1 = _overconfident_depths(1.0)
+    pose3, depth3 = _overconfident_depths(3.0)
+    assert pose3 < 0.6 * pose1
+    assert depth3 < 0.8 * depth1
+
+
 def test_a_keyframe_the_window_barely_sees_is_held():
     map_, _, config = _map(np.random.default_rng(4), {4: 12})
     p = ba.build_problem(map_, 3, CAMERA, config)
