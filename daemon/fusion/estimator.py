@@ -295,12 +295,12 @@ class FusionEstimator:
         or an earlier fit), or more than 3 sigma away from the filter's (its linearised scale
         has run off while its covariance shrank)."""
         f, cfg = self.filter, self.cfg
-        if not self._imu_fresh(t):
-            f.motion.interrupt()
+        if f.published or not self._imu_fresh(t):
+            f.motion.interrupt()  # nothing left to fit, or no IMU to fit
             return
         f.motion.add_frame(t, frame.p_w, f.R_nom)
         fit = f.motion.fit()
-        if att is None or f.published or fit is None or not fit[1] <= cfg.coarse_scale_std:
+        if att is None or fit is None or not fit[1] <= cfg.coarse_scale_std:
             return
         std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
         surer = fit[1] < std and f.scale_source != "given"

@@ -199,10 +199,9 @@ class NavFilter:
         J[VEL, VEL] *= ratio
         J[LOG_SCALE, LOG_SCALE] = 0.0
         P = J @ P @ J.T
-        P[LOG_SCALE, LOG_SCALE] = scale_std**2
-        d = np.zeros(DIM)  # how the new position and velocity move with the new ln(scale)
+        d = np.zeros(DIM)  # the new ln(scale), and how position and velocity move with it
         d[POS], d[VEL], d[LOG_SCALE] = s * m, ratio * x[VEL], 1.0
-        P += (np.outer(d, d) - np.diag(np.eye(DIM)[LOG_SCALE])) * scale_std**2
+        P += np.outer(d, d) * scale_std**2
         P[POS, POS] += np.eye(3) * self.cfg.vo_position_std_m**2
         self.ekf.P = 0.5 * (P + P.T)
         x[POS] = x[ANCHOR] + s * m - R_n_b @ self.lever
