@@ -20,6 +20,7 @@ DIFF_DT = 0.01
 ACCEL_LIMIT = 16 * GRAVITY
 GYRO_LIMIT = 30.0
 MAX_RANGE_CM = 65535
+RANGEFINDER_MAX_CM = 4000  # the DISTANCE_SENSOR's max_distance: a reading there is no echo
 
 
 def hover_trajectory(duration_s: float = 20.0, rate_hz: float = 50.0) -> Trajectory:
@@ -59,6 +60,11 @@ class Vehicle:
                 "specific_force": specific_force}
 
 
+def nearest_sample(times: np.ndarray, t: float) -> int:
+    """Index of the recorded sample a stream sends at time t (the first at or after it)."""
+    return int(np.clip(np.searchsorted(times, t), 0, len(times) - 1))
+
+
 def sensor_message(mav: mavlink2.MAVLink, name: str, t: float, boot_ms: int,
                     vehicle: Vehicle) -> object:
     """One stream message of kind `name` for vehicle time `t`."""
@@ -81,8 +87,9 @@ def sensor_message(mav: mavlink2.MAVLink, name: str, t: float, boot_ms: int,
     if name == "DISTANCE_SENSOR":
         tilt = np.cos(roll) * np.cos(pitch)
         distance = s.get("range", height / max(tilt, 0.1))  # a recorded one's, None: no echo
-        cm = 4000 if distance is None else min(max(round(100 * distance), 0), MAX_RANGE_CM)
-        return mav.distance_sensor_encode(boot_ms, 20, 4000, cm,
+        cm = (RANGEFINDER_MAX_CM if distance is None
+              else min(max(round(100 * distance), 0), MAX_RANGE_CM))
+        return mav.distance_sensor_encode(boot_ms, 20, RANGEFINDER_MAX_CM, cm,
                                           mavlink2.MAV_DISTANCE_SENSOR_LASER, 0,
                                           mavlink2.MAV_SENSOR_ROTATION_PITCH_270, 0)
     if name == "SCALED_PRESSURE":

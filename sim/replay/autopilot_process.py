@@ -19,7 +19,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from sim.autopilot import SimAutopilot, SimOptions
-from sim.autopilot.vehicle import Vehicle
+from sim.autopilot.vehicle import Vehicle, nearest_sample
 from sim.datasets.layout import SensorSamples
 from sim.sequence import ImuSamples
 from sim.trajectory import Trajectory
@@ -81,7 +81,7 @@ class ReplayVehicle:
                 state["rates"] = _interp_rows(t, self.imu.t, self.imu.gyro)
         if self.sensors is not None:
             s = self.sensors
-            i = int(np.clip(np.searchsorted(s.t, t), 0, len(s.t) - 1))
+            i = nearest_sample(s.t, t)
             state["rotation"] = Rotation.from_quat(s.attitude[i])
             state["baro_alt"] = float(s.baro_alt[i])
             state["range"] = float(s.range[i]) if s.range_valid[i] else None

@@ -25,7 +25,7 @@ from scipy.spatial.transform import Rotation
 from daemon.config import Config, replace
 from daemon.fusion.estimator import FusionEstimator
 from daemon.messages import odometry
-from sim.autopilot.vehicle import Vehicle, sensor_message
+from sim.autopilot.vehicle import RANGEFINDER_MAX_CM, Vehicle, nearest_sample, sensor_message
 from sim.replay.autopilot_process import VisionMessage
 from sim.replay.flight import resampled, sensor_streams
 from sim.replay.harness import FirstFrames, ReplayRun
@@ -37,10 +37,6 @@ BOOT_CLOCK = 10.0  # the autopilot's boot clock at sequence time 0
 LINK_LATENCY_S = 0.01  # autopilot message -> companion
 RESULT_DELAY_S = 0.03  # frame capture -> tracker result
 SEA_LEVEL_HPA = 1013.25
-
-
-def _nearest(times: np.ndarray, t: float) -> int:
-    return int(np.clip(np.searchsorted(times, t), 0, len(times) - 1))
 
 
 def _pressure_hpa(altitude_m: float) -> float:
@@ -59,18 +55,18 @@ class RecordedSensors:
     def message(self, mav: mavlink2.MAVLink, name: str, t: float, boot_ms: int) -> object:
         """The stream message `name` at sequence time t."""
         s = self.s
-        i = _nearest(s.t, t)
+        i = nearest_sample(s.t, t)
         if name == "ATTITUDE":
             yaw, pitch, roll = Rotation.from_quat(s.attitude[i]).as_euler("ZYX")
-            gyro = self.imu.gyro[_nearest(self.imu.t, t)] if self.imu.gyro is not None else (
+            gyro = self.imu.gyro[nearest_sample(self.imu.t, t)] if self.imu.gyro is not None else (
                 np.zeros(3))
             return mav.attitude_encode(boot_ms, roll, pitch, yaw, *gyro)
         if name in ("SCALED_IMU", "HIGHRES_IMU", "RAW_IMU"):
-            accel_mg = (self.imu.accel[_nearest(self.imu.t, t)] / 9.80665 * 1000).round()
+            accel_mg = (self.imu.accel[nearest_sample(self.imu.t, t)] / 9.80665 * 1000).round()
             return mav.scaled_imu_encode(boot_ms, *accel_mg.astype(int), 0, 0, 0, 0, 0, 0)
         if name == "DISTANCE_SENSOR":
-            cm = round(100 * float(s.range[i])) if s.range_valid[i] else 4000
-            return mav.distance_sensor_encode(boot_ms, 20, 4000, cm,
+            cm = round(100 * float(s.range[i])) if s.range_valid[i] else RANGEFINDER_MAX_CM
+            return mav.distance_sensor_encode(boot_ms, 20, RANGEFINDER_MAX_CM, cm,
                                               mavlink2.MAV_DISTANCE_SENSOR_LASER, 0,
                                               mavlink2.MAV_SENSOR_ROTATION_PITCH_270, 0)
         if name in ("SCALED_PRESSURE", "ALTITUDE"):
