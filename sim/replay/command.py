@@ -18,6 +18,7 @@ from daemon.run_command import setup_logging
 from sim.replay.flight import SENSOR_STREAMS, is_ned
 from sim.replay.harness import choose_estimator, during_replay, run_replay
 from sim.replay.report import build_report, format_report
+from sim.replay.seeds import compass_bias_deg, format_seeds, parse_seeds, summarize
 
 DEFAULT_PRESET = "hover-down"
 
@@ -49,8 +50,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         choices=sorted(SENSOR_STREAMS),
                         help="the autopilot does not stream this sensor (repeatable): fusion "
                              "with fewer sensors")
-    parser.add_argument("--seed", type=int, default=None,
-                        help="seed of a synthetic preset (its world, sensor noise; default 0)")
+    seeds = parser.add_mutually_exclusive_group()
+    seeds.add_argument("--seed", type=int, default=None,
+                       help="seed of a synthetic preset (its world, sensor noise; default 0)")
+    seeds.add_argument("--seeds", default=None, metavar="LIST",
+                       help="fly a synthetic preset once per seed ('0-4', '1,3,7') and print a "
+                            "line per seed and the average NEES over the runs (ANEES): the "
+                            "filter's consistency is judged over flights (sim/replay/seeds.py)")
     parser.add_argument("--max-frames", type=int, default=None, metavar="N",
                         help="replay only the first N frames")
     parser.add_argument("--out", type=Path, default=None, metavar="DIR",
@@ -88,13 +94,11 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--max-frames must be positive")
     config = load_config(args.config) if args.config else Config()
     setup_logging(args.log_level)
+    if args.seeds is not None:
+        return _run_seeds(args, config)
     sequence = _open(args.sequence, args.seed)
-    config = choose_estimator(config, sequence, args.estimator)
-    realtime = config.fusion.enabled if args.realtime is None else args.realtime
-    replay = run_replay(sequence, config, realtime, args.max_frames, progress=not args.quiet,
-                        without=tuple(args.without))
-    out_dir = args.out or Path("sdvl-replay") / sequence.name
-    report, aligned, reference = build_report(replay, out_dir)
+    replay, report, aligned, reference = _replay(sequence, config, args,
+                                                 args.out or Path("sdvl-replay") / sequence.name)
     if args.plot is not None:
         if aligned is None:
             raise InputError("no plot: the sequence has no ground truth or too few poses "
@@ -106,3 +110,34 @@ def run(args: argparse.Namespace) -> int:
                     ned=is_ned(sequence))
     print(json.dumps(report) if args.json else format_report(report))
     return replay.exit_code
+
+
+def _replay(sequence, config: Config, args: argparse.Namespace, out_dir: Path):
+    """One replay of `sequence`: the run, its report, the aligned trajectories and reference."""
+    config = choose_estimator(config, sequence, args.estimator)
+    realtime = config.fusion.enabled if args.realtime is None else args.realtime
+    replay = run_replay(sequence, config, realtime, args.max_frames, progress=not args.quiet,
+                        without=tuple(args.without))
+    return (replay, *build_report(replay, out_dir))
+
+
+def _run_seeds(args: argparse.Namespace, config: Config) -> int:
+    """The preset once per seed of --seeds; a line per seed and the summary over them."""
+    if args.plot is not None:
+        raise InputError("--plot draws one run: use --seed N with it, not --seeds")
+    seeds = parse_seeds(args.seeds)
+    reports, biases, exit_code = [], [], 0
+    for seed in seeds:
+        sequence = _open(args.sequence, seed)
+        out_dir = (args.out or Path("sdvl-replay") / sequence.name) / f"seed{seed}"
+        replay, report, _, _ = _replay(sequence, config, args, out_dir)
+        reports.append(report)
+        biases.append(compass_bias_deg(sequence))
+        exit_code = exit_code or replay.exit_code
+    summary = summarize(reports)
+    if args.json:
+        print(json.dumps({"seeds": seeds, "runs": reports, "compass_bias_deg": biases,
+                          "summary": summary}))
+    else:
+        print(format_seeds(seeds, reports, biases, summary))
+    return exit_code
