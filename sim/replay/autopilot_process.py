@@ -74,18 +74,24 @@ class ReplayVehicle:
         """Vehicle.state at the current sequence time (the uptime argument is ignored);
         sensor_message saturates the IMU readings like a real sensor's."""
         t = self.sequence_time()
-        state = self.inner.state(t - self.inner.t0)
-        if self.imu is not None:
-            state["specific_force"] = _interp_rows(t, self.imu.t, self.imu.accel)
-            if self.imu.gyro is not None:
-                state["rates"] = _interp_rows(t, self.imu.t, self.imu.gyro)
-        if self.sensors is not None:
-            s = self.sensors
-            i = nearest_sample(s.t, t)
-            state["rotation"] = Rotation.from_quat(s.attitude[i])
-            state["baro_alt"] = float(s.baro_alt[i])
-            state["range"] = float(s.range[i]) if s.range_valid[i] else None
-        return state
+        return with_recordings(self.inner.state(t - self.inner.t0), t, self.imu, self.sensors)
+
+
+def with_recordings(state: dict, t: float, imu: ImuSamples | None,
+                    sensors: SensorSamples | None) -> dict:
+    """A Vehicle state at sequence time t with the flight's recorded readings in place of the
+    derived ones: a body IMU's, and a synthetic flight's attitude, barometer and rangefinder
+    (noise and compass bias included)."""
+    if imu is not None:
+        state["specific_force"] = _interp_rows(t, imu.t, imu.accel)
+        if imu.gyro is not None:
+            state["rates"] = _interp_rows(t, imu.t, imu.gyro)
+    if sensors is not None:
+        i = nearest_sample(sensors.t, t)
+        state["rotation"] = Rotation.from_quat(sensors.attitude[i])
+        state["baro_alt"] = float(sensors.baro_alt[i])
+        state["range"] = float(sensors.range[i]) if sensors.range_valid[i] else None
+    return state
 
 
 def _interp_rows(t: float, times: np.ndarray, values: np.ndarray) -> np.ndarray:

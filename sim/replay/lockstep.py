@@ -20,14 +20,13 @@ from collections.abc import Callable
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
-from scipy.spatial.transform import Rotation
 
 from daemon.config import Config, replace
 from daemon.fusion.estimator import FusionEstimator
 from daemon.messages import odometry
-from sim.autopilot.vehicle import RANGEFINDER_MAX_CM, Vehicle, nearest_sample, sensor_message
-from sim.replay.autopilot_process import VisionMessage
-from sim.replay.flight import resampled, sensor_streams
+from sim.autopilot.vehicle import Vehicle, sensor_message
+from sim.replay.autopilot_process import VisionMessage, with_recordings
+from sim.replay.flight import body_imu, resampled, sensor_streams
 from sim.replay.harness import FirstFrames, ReplayRun
 from sim.replay.progress import Progress
 from sim.trajectory import Trajectory
@@ -36,43 +35,22 @@ OUR_CLOCK = 1000.0  # our monotonic clock at sequence time 0
 BOOT_CLOCK = 10.0  # the autopilot's boot clock at sequence time 0
 LINK_LATENCY_S = 0.01  # autopilot message -> companion
 RESULT_DELAY_S = 0.03  # frame capture -> tracker result
-SEA_LEVEL_HPA = 1013.25
 
 
-def _pressure_hpa(altitude_m: float) -> float:
-    """Standard-atmosphere static pressure at an altitude (inverse of the parser's)."""
-    return SEA_LEVEL_HPA * (1.0 - altitude_m / 44330.77) ** (1.0 / 0.190263)
+class RecordedVehicle:
+    """The flight as lockstep's autopilot streams it: the motion derived from the flight, with
+    the readings the sequence recorded in their place (sim.synth: 200 Hz body IMU, 50 Hz
+    attitude, barometer and rangefinder), as the real-time replay's vehicle."""
 
+    def __init__(self, sequence: object, flight: Trajectory):
+        self.inner = Vehicle(resampled(flight))
+        self.t0 = self.inner.t0
+        self.imu = body_imu(sequence)
+        self.sensors = sequence.extras.get("sensors")
 
-class RecordedSensors:
-    """Autopilot messages from a synthetic flight's recorded sensors (sim.synth: 200 Hz body
-    IMU, 50 Hz attitude, barometer and rangefinder), sampled like a stream at time t."""
-
-    def __init__(self, sequence: object):
-        self.imu = sequence.imu
-        self.s = sequence.extras["sensors"]
-
-    def message(self, mav: mavlink2.MAVLink, name: str, t: float, boot_ms: int) -> object:
-        """The stream message `name` at sequence time t."""
-        s = self.s
-        i = nearest_sample(s.t, t)
-        if name == "ATTITUDE":
-            yaw, pitch, roll = Rotation.from_quat(s.attitude[i]).as_euler("ZYX")
-            gyro = self.imu.gyro[nearest_sample(self.imu.t, t)] if self.imu.gyro is not None else (
-                np.zeros(3))
-            return mav.attitude_encode(boot_ms, roll, pitch, yaw, *gyro)
-        if name in ("SCALED_IMU", "HIGHRES_IMU", "RAW_IMU"):
-            accel_mg = (self.imu.accel[nearest_sample(self.imu.t, t)] / 9.80665 * 1000).round()
-            return mav.scaled_imu_encode(boot_ms, *accel_mg.astype(int), 0, 0, 0, 0, 0, 0)
-        if name == "DISTANCE_SENSOR":
-            cm = round(100 * float(s.range[i])) if s.range_valid[i] else RANGEFINDER_MAX_CM
-            return mav.distance_sensor_encode(boot_ms, 20, RANGEFINDER_MAX_CM, cm,
-                                              mavlink2.MAV_DISTANCE_SENSOR_LASER, 0,
-                                              mavlink2.MAV_SENSOR_ROTATION_PITCH_270, 0)
-        if name in ("SCALED_PRESSURE", "ALTITUDE"):
-            return mav.scaled_pressure_encode(boot_ms, _pressure_hpa(float(s.baro_alt[i])),
-                                              0.0, 2500)
-        raise ValueError(f"no stream called {name}")
+    def state(self, t: float) -> dict:
+        """Vehicle.state at vehicle time t (sequence time t + t0)."""
+        return with_recordings(self.inner.state(t), t + self.t0, self.imu, self.sensors)
 
 
 def autopilot_messages(sequence: object, flight: Trajectory, streams: dict[str, float],
@@ -80,19 +58,14 @@ def autopilot_messages(sequence: object, flight: Trajectory, streams: dict[str, 
     """(arrival on our clock, message) of every stream up to sequence time `end`, in arrival
     order; stamps on the autopilot's boot clock."""
     mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
-    if "sensors" in sequence.extras and sequence.imu is not None:
-        make = RecordedSensors(sequence).message
-    else:
-        vehicle = Vehicle(resampled(flight))
-
-        def make(mav: mavlink2.MAVLink, name: str, t: float, boot_ms: int) -> object:
-            return sensor_message(mav, name, t - vehicle.t0, boot_ms, vehicle)
+    vehicle = RecordedVehicle(sequence, flight)
     t0 = float(flight.t[0])
     out = []
     for name, hz in streams.items():
         for t in np.arange(t0, end, 1.0 / hz):
             boot_ms = round((t + BOOT_CLOCK) * 1000)
-            out.append((t + OUR_CLOCK + LINK_LATENCY_S, make(mav, name, float(t), boot_ms)))
+            message = sensor_message(mav, name, float(t) - vehicle.t0, boot_ms, vehicle)
+            out.append((t + OUR_CLOCK + LINK_LATENCY_S, message))
     out.sort(key=lambda item: item[0])
     return out
 
