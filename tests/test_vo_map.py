@@ -1,5 +1,6 @@
 """Map storage: slot recycling is delayed, removing a keyframe drops what it hosts, the store
-stays bounded under churn; quality classification of 6.10."""
+stays bounded under churn, a keyframe observes only live points; quality classification of
+6.10."""
 
 from __future__ import annotations
 
@@ -53,6 +54,26 @@ def test_removing_a_keyframe_drops_its_points_and_observations():
     assert (m.points.status[ids] == DELETED).all()
     m.prune_observations()
     assert len(m.obs) == 0 and len(m) == 1
+
+
+def test_a_keyframe_observes_only_live_points_after_its_slots_are_recycled():
+    # relocalisation aligns to old keyframes through what they observe: their feature lists
+    # name slots that points created since may have taken over
+    cam = CameraModel(64, 48, 50.0, 50.0, 31.5, 23.5)
+    m = Map(64, 48, 3, 5)
+    ids = _add(m.points, 20)
+    kf = Frame(0, 0.0, np.zeros((48, 64), np.uint8), cam, 3)
+    uv = np.arange(40.0).reshape(20, 2)
+    kf.set_features(ids, uv, np.zeros(20, np.int64))
+    slot = m.add_keyframe(kf)
+    m.points.delete(ids[:8])
+    for _ in range(RELEASE_DELAY):
+        m.points.step()
+    m.prune_observations()
+    reused = _add(m.points, 8)
+    assert np.intersect1d(reused, kf.feat_point).size == 8
+    seen, px = m.observed_by(slot)
+    assert np.array_equal(seen, ids[8:]) and np.array_equal(px, uv[8:])
 
 
 def test_quality_as_in_thesis():

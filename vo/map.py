@@ -188,6 +188,13 @@ class Map:
         status = self.points.status[self.obs.point]
         self.obs.keep((status != DELETED) & (status != FREE))
 
+    def observed_by(self, slot: int) -> tuple[np.ndarray, np.ndarray]:
+        """(point ids, level-0 pixels) of the live points keyframe `slot` observes now: its
+        own feature list may name slots recycled since it was taken."""
+        with self.lock:
+            rows = self.obs.kf == slot
+            return self.obs.point[rows].copy(), self.obs.uv[rows].copy()
+
     def covisible(self, point_ids: np.ndarray, exclude: int, min_shared: int) -> list[int]:
         """Keyframe slots sharing at least `min_shared` of `point_ids`, most shared first."""
         counts = _shared_counts(self.obs.point, self.obs.kf, np.asarray(point_ids, np.int64),

@@ -278,7 +278,7 @@ class Tracker:
         motion = self.motion if cfg.constant_velocity else np.eye(4)
         frame.T_c_w = motion @ last.T_c_w
         t0 = time.perf_counter()
-        self._align(frame, last)
+        self._align(frame, last, last.feat_point, last.feat_px)
         timings["align"] = _ms(t0)
         m = self._match(frame, timings)
         quality = self._quality(m)
@@ -473,30 +473,31 @@ class Tracker:
     def _align_to_keyframe(self, frame: Frame, kf: Frame) -> float:
         """Frame's pose by direct alignment to keyframe kf from the best of the shifted
         priors; returns the residual ratio of that alignment."""
-        pts = self.map.points
-        X = pts.pos_w[kf.feat_point] @ kf.T_c_w[:3, :3].T + kf.T_c_w[:3, 3]
+        ids, px = self.map.observed_by(kf.slot)
+        X = self.map.points.pos_w[ids] @ kf.T_c_w[:3, :3].T + kf.T_c_w[:3, 3]
         depth = float(np.median(X[:, 2])) if len(X) else 1.0
         best, best_T = np.inf, kf.T_c_w
         for prior in shifted_priors(kf, frame, self.camera, self.config.reloc_shift_level,
                                     depth):
             frame.T_c_w = prior
-            ratio = self._align(frame, kf, measure=True)
+            ratio = self._align(frame, kf, ids, px, measure=True)
             if ratio < best:
                 best, best_T = ratio, frame.T_c_w
         frame.T_c_w = best_T
         return best
 
     # ------------------------------------------------------------------ stages
-    def _align(self, frame: Frame, last: Frame, measure: bool = False) -> float:
-        """Sparse image alignment of frame to the last frame (its matched points); with
-        `measure`, returns how badly the patches fit afterwards (sparse_align.residual_ratio,
-        at the finest level aligned; inf when alignment was impossible)."""
+    def _align(self, frame: Frame, last: Frame, ids: np.ndarray, px: np.ndarray,
+               measure: bool = False) -> float:
+        """Sparse image alignment of frame to an earlier frame through the points `ids` it
+        saw at pixels `px`; with `measure`, returns how badly the patches fit afterwards
+        (sparse_align.residual_ratio, at the finest level aligned; inf when alignment was
+        impossible)."""
         pts = self.map.points
-        alive = (pts.status[last.feat_point] == CANDIDATE) | (
-            pts.status[last.feat_point] == CONVERGED)
+        alive = (pts.status[ids] == CANDIDATE) | (pts.status[ids] == CONVERGED)
         if alive.sum() < MIN_POSE_MATCHES:
             return np.inf
-        ids, px = last.feat_point[alive], last.feat_px[alive]
+        ids, px = ids[alive], px[alive]
         X = pts.pos_w[ids] @ last.T_c_w[:3, :3].T + last.T_c_w[:3, 3]
         depth = np.linalg.norm(X, axis=1)
         xyz = self.camera.unproject(px) * depth[:, None]
