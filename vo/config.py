@@ -23,6 +23,8 @@ class TrackerConfig:
     align_max_level: int = 4
     align_min_level: int = 2
     align_iterations: int = 30
+    # Tukey-weighted intensity residuals (vo.sparse_align), else plain least squares (6.10)
+    align_robust: bool = True
 
     # feature alignment and pose refinement (6.7.2, 6.7.3)
     max_matches: int = 200
