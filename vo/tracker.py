@@ -505,7 +505,7 @@ class Tracker:
         cfg = self.config
         T_cur_last = sparse_align.align(self.camera.params, last.pyr, frame.pyr, px, xyz,
                                         T_cur_last, cfg.align_max_level, cfg.align_min_level,
-                                        cfg.align_iterations)
+                                        cfg.align_iterations, cfg.align_robust)
         frame.T_c_w = T_cur_last @ last.T_c_w
         if not measure:
             return np.nan
