@@ -72,10 +72,12 @@ def _patch_centre(params, T_cur_ref, p_ref, level, w, h):
 
 
 @numba.njit(cache=True, nogil=True)
-def _residuals(params, flat, off, w, h, level, patches, valid, xyz, T_cur_ref):
-    """Intensity residuals (current - reference) of the patches visible at T_cur_ref."""
-    out = np.empty(patches.shape[0] * N4)
-    count = 0
+def _patch_residuals(params, flat, off, w, h, level, patches, valid, xyz, T_cur_ref):
+    """Intensity residuals (current - reference, one row per patch visible at T_cur_ref) and
+    the index of each row's patch."""
+    res = np.empty((patches.shape[0], N4))
+    rows = np.empty(patches.shape[0], dtype=np.int64)
+    n = 0
     for i in range(patches.shape[0]):
         if not valid[i]:
             continue
@@ -85,10 +87,11 @@ def _residuals(params, flat, off, w, h, level, patches, valid, xyz, T_cur_ref):
         k = 0
         for r in range(-HALF4, HALF4):
             for c in range(-HALF4, HALF4):
-                out[count] = sample(flat, off, w, u + c, v + r) - patches[i, k]
-                count += 1
+                res[n, k] = sample(flat, off, w, u + c, v + r) - patches[i, k]
                 k += 1
-    return out[:count]
+        rows[n] = i
+        n += 1
+    return res[:n], rows[:n]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -104,40 +107,34 @@ def tukey_scale(residuals):
 def _normal_equations(params, flat, off, w, h, level, patches, jac, valid, xyz, T_cur_ref, c):
     """H, b, mean Tukey cost (cut-off c; inf for squared residuals) and pixel count of the
     photometric error at T_cur_ref."""
+    res, rows = _patch_residuals(params, flat, off, w, h, level, patches, valid, xyz,
+                                 T_cur_ref)
     H = np.zeros((6, 6))
     b = np.zeros(6)
     cost = 0.0
-    count = 0
     robust = np.isfinite(c)
-    for i in range(patches.shape[0]):
-        if not valid[i]:
-            continue
-        ok, u, v = _patch_centre(params, T_cur_ref, xyz[i], level, w, h)
-        if not ok:
-            continue
-        k = 0
-        for r in range(-HALF4, HALF4):
-            for c_ in range(-HALF4, HALF4):
-                res = sample(flat, off, w, u + c_, v + r) - patches[i, k]
-                k += 1
-                count += 1
-                weight = 1.0
-                if robust:
-                    x = res / c
-                    if x * x >= 1.0:
-                        cost += c * c / 6.0
-                        continue
-                    weight = (1.0 - x * x) ** 2
-                    cost += c * c / 6.0 * (1.0 - (1.0 - x * x) ** 3)
-                else:
-                    cost += res * res
-                for a in range(6):
-                    b[a] += weight * jac[i, k - 1, a] * res
-                    for q in range(a, 6):
-                        H[a, q] += weight * jac[i, k - 1, a] * jac[i, k - 1, q]
+    for j in range(rows.shape[0]):
+        i = rows[j]
+        for k in range(N4):
+            e = res[j, k]
+            weight = 1.0
+            if robust:
+                x = e / c
+                if x * x >= 1.0:
+                    cost += c * c / 6.0
+                    continue
+                weight = (1.0 - x * x) ** 2
+                cost += c * c / 6.0 * (1.0 - (1.0 - x * x) ** 3)
+            else:
+                cost += e * e
+            for a in range(6):
+                b[a] += weight * jac[i, k, a] * e
+                for q in range(a, 6):
+                    H[a, q] += weight * jac[i, k, a] * jac[i, k, q]
     for a in range(6):
         for q in range(a):
             H[a, q] = H[q, a]
+    count = rows.shape[0] * N4
     return H, b, cost / max(count, 1), count
 
 
@@ -149,7 +146,8 @@ def align_level(params, flat, off, w, h, level, patches, jac, valid, xyz, T_cur_
     T = T_cur_ref.copy()
     c = np.inf
     if robust:
-        c = tukey_scale(_residuals(params, flat, off, w, h, level, patches, valid, xyz, T))
+        res, _ = _patch_residuals(params, flat, off, w, h, level, patches, valid, xyz, T)
+        c = tukey_scale(res.ravel())
     H, b, cost, count = _normal_equations(params, flat, off, w, h, level, patches, jac, valid,
                                           xyz, T, c)
     for _ in range(iterations):
@@ -190,25 +188,17 @@ def align(params: np.ndarray, ref_pyr, cur_pyr, px_ref: np.ndarray, xyz_ref: np.
 def _residual_ratio(params, flat, off, w, h, level, patches, valid, xyz, T_cur_ref):
     """Zero-mean residual energy of the patches over their own zero-mean energy (per patch
     mean removed, so a brightness change costs nothing); inf when no patch is visible."""
+    res, rows = _patch_residuals(params, flat, off, w, h, level, patches, valid, xyz,
+                                 T_cur_ref)
     err = 0.0
     energy = 0.0
-    for i in range(patches.shape[0]):
-        if not valid[i]:
-            continue
-        ok, u, v = _patch_centre(params, T_cur_ref, xyz[i], level, w, h)
-        if not ok:
-            continue
-        res = np.empty(N4)
-        k = 0
-        for r in range(-HALF4, HALF4):
-            for c in range(-HALF4, HALF4):
-                res[k] = sample(flat, off, w, u + c, v + r) - patches[i, k]
-                k += 1
-        ref_mean = patches[i].mean()
-        res_mean = res.mean()
+    for j in range(rows.shape[0]):
+        patch = patches[rows[j]]
+        ref_mean = patch.mean()
+        res_mean = res[j].mean()
         for k in range(N4):
-            err += (res[k] - res_mean) ** 2
-            energy += (patches[i, k] - ref_mean) ** 2
+            err += (res[j, k] - res_mean) ** 2
+            energy += (patch[k] - ref_mean) ** 2
     return err / energy if energy > 0.0 else np.inf
 
 
