@@ -121,10 +121,12 @@ def test_rejection_keeps_a_moving_object_out_of_the_pose(flights):
     with_rejection, n_with = _ate(cam, busy, gt, True)
     without, _ = _ate(cam, busy, gt, False)
     assert n_with >= 0.9 * len(busy)
-    # measured 0.0052 vs 0.0040 m calm (1.32x; 1.60x before thresholds were image pixels and
-    # repeatedly rejected points left the map) and 0.216 m without rejection
+    # measured 0.0043 vs 0.0039 m calm (1.12x; plain least-squares alignment 1.32x, 1.60x
+    # before thresholds were image pixels and repeatedly rejected points left the map) and
+    # 0.0077 m without rejection, where the robust sparse alignment already discounts the
+    # object's patches (0.216 m with plain least squares)
     assert with_rejection <= 1.5 * calm_ate
-    assert with_rejection < 0.1 * without
+    assert with_rejection < 0.75 * without
 
 
 WALKERS_SIZE = (320, 240)
