@@ -28,15 +28,31 @@ def test_recycling_waits_and_store_stays_bounded():
     assert (pts.status[first[:50]] == DELETED).all()
     again = _add(pts, 50)
     assert not np.intersect1d(again, first[:50]).size  # not reused yet
-    for _ in range(RELEASE_DELAY):
-        pts.step()
+    for frame in range(RELEASE_DELAY):
+        pts.step(frame)
     assert (pts.status[first[:50]] == FREE).all()
     capacity = pts.capacity
-    for _ in range(200):  # steady churn reuses slots
+    for frame in range(200):  # steady churn reuses slots
+        pts.newest_frame = frame
         ids = _add(pts, 40)
         pts.delete(ids)
-        pts.step()
+        pts.step(frame)
     assert pts.capacity == capacity
+
+
+def test_recycling_waits_for_the_frames_tracked_before_the_deletion():
+    """A mapper behind tracking (threaded) still has frames to map that may have matched a
+    deleted point: its slot is freed only once a frame tracked after the deletion is mapped,
+    however many mapping steps pass before."""
+    pts = Map(64, 48, 3, 5).points
+    ids = _add(pts, 10)
+    pts.newest_frame = 7  # tracking is at frame 7; the mapper is at frame 3
+    pts.delete(ids)
+    for frame in range(3, 8):
+        pts.step(frame)
+        assert (pts.status[ids] == DELETED).all(), frame
+    pts.step(8)
+    assert (pts.status[ids] == FREE).all()
 
 
 def test_removing_a_keyframe_drops_its_points_and_observations():

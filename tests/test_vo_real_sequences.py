@@ -11,6 +11,7 @@ from sim.datasets import open_sequence
 from sim.metrics import evaluate
 from sim.trajectory import Trajectory
 from vo.config import TrackerConfig
+from vo.map import FREE
 from vo.tracker import Tracker
 
 PRESETS = Path(__file__).resolve().parents[1] / "vo" / "presets"
@@ -51,3 +52,35 @@ def test_kitti_with_its_preset_meets_the_acceptance(data_dir):
     assert len(qualities) == 200
     assert len(est) >= 0.9 * 200 and segments == 1
     assert evaluate(seq.groundtruth, est, "sim3").ate_rmse_m <= 3.0
+
+
+def test_frames_waiting_for_mapping_keep_their_points(data_dir, monkeypatch):
+    """A mapping thread behind tracking maps frames whose matched points may since have been
+    deleted: their slots must not be recycled before those frames are mapped (a keyframe would
+    record observations of, and seed depths from, other points). Mapping runs here LAG frames
+    behind tracking, deterministically, as a slow mapping thread would (kitti00: 13 stale
+    references when slots were recycled after two mapping steps, whatever the frames)."""
+    seq = open_sequence(data_dir / "kitti00_first200")
+    config = TrackerConfig.from_toml(PRESETS / "kitti_10hz.toml")
+    tracker = Tracker(seq.camera, config)
+    lag, waiting, stale, mapper = 4, [], [], [tracker.mapper]
+
+    def lagging_map_step(frame, keyframe):
+        if tracker.mapper is not mapper[0]:  # a new map: the old one's frames are forgotten
+            mapper[0] = tracker.mapper
+            waiting.clear()
+        pts = tracker.map.points
+        waiting.append((frame, keyframe, pts.host[frame.feat_point].copy(),
+                        pts.u[frame.feat_point].copy()))
+        while len(waiting) > lag:
+            old, is_kf, host, u = waiting.pop(0)
+            ids = old.feat_point
+            same = (pts.status[ids] != FREE) & (pts.host[ids] == host) & (pts.u[ids] == u)
+            stale.append(int((~same).sum()))
+            tracker.mapper.step(old, is_kf)
+
+    monkeypatch.setattr(tracker, "_map_step", lagging_map_step)
+    for t, image in seq.frames(None):
+        tracker.process(image, t)
+    assert len(stale) > 100
+    assert sum(stale) == 0

@@ -3,7 +3,9 @@
 Points are stored in inverse depth relative to their host keyframe (thesis 6.3): bearing `f` at
 host pixel (`u`, `v`, `level`), inverse depth `rho` +- `sigma`, Beta(`a`, `b`) inlier model.
 `pos_w` caches the world position (eq. 6.4). Deleted point slots are recycled two mapping steps
-later, so a frame's feature list never refers to a recycled point.
+later, and only once every frame that existed when they were deleted has been mapped, so a
+frame's feature list never refers to a recycled point (a threaded mapper may be several frames
+behind tracking).
 """
 
 from __future__ import annotations
@@ -39,8 +41,11 @@ class PointStore:
         self.desc = np.zeros((0, levels, DESC_BYTES), dtype=np.uint8)
         self.desc_state = np.zeros((0, levels), dtype=np.int8)
         self._free: list[int] = []
-        self._pending: list[tuple[int, np.ndarray]] = []
+        # (mapping step, newest frame id, point ids) of each deletion waiting for release
+        self._pending: list[tuple[int, int, np.ndarray]] = []
         self._step = 0
+        # id of the newest frame tracking has started on (set by the tracker)
+        self.newest_frame = -1
         self._grow(capacity)
 
     def _grow(self, capacity: int) -> None:
@@ -87,23 +92,25 @@ class PointStore:
         self.pos_w[idx] = local @ T_w_host[:3, :3].T + T_w_host[:3, 3]
 
     def delete(self, idx: np.ndarray) -> None:
-        """Mark points deleted; their slots are recycled after RELEASE_DELAY steps."""
+        """Mark points deleted; their slots are recycled after RELEASE_DELAY mapping steps,
+        once a frame newer than every frame that may have matched them is mapped."""
         idx = np.asarray(idx, dtype=np.int64)
         idx = idx[self.status[idx] != DELETED]
         if len(idx):
             self.status[idx] = DELETED
-            self._pending.append((self._step, idx))
+            self._pending.append((self._step, self.newest_frame, idx))
 
-    def step(self) -> bool:
-        """Advance the recycling clock by one mapping step; True when slots were freed."""
+    def step(self, frame_id: int) -> bool:
+        """Advance the recycling clock by one mapping step, that of frame `frame_id` (frames
+        are mapped in order); True when slots were freed."""
         self._step += 1
         keep = []
-        for when, idx in self._pending:
-            if self._step - when >= RELEASE_DELAY:
+        for when, newest, idx in self._pending:
+            if self._step - when >= RELEASE_DELAY and frame_id > newest:
                 self.status[idx] = FREE
                 self._free.extend(int(i) for i in idx)
             else:
-                keep.append((when, idx))
+                keep.append((when, newest, idx))
         freed = len(keep) < len(self._pending)
         self._pending = keep
         return freed

@@ -179,7 +179,7 @@ class Mapper:
         self.before_step(frame)
         pts = self.map.points
         with self.map.lock:
-            if pts.step():
+            if pts.step(frame.id):
                 # observations of freed slots must go before the slots are reused
                 self.map.prune_observations()
         cand = np.flatnonzero(pts.status == CANDIDATE)

@@ -62,6 +62,7 @@ class Tracker:
         cfg = self.config
         self.map = Map(self.camera.width, self.camera.height, cfg.pyramid_levels,
                        cfg.max_keyframes)
+        self.map.points.newest_frame = self._frame_id - 1
         self.mapper = Mapper(self.camera, cfg, self.map)
         self.mapper.after_ba = self._follow_ba
         if self.threaded:
@@ -152,6 +153,7 @@ class Tracker:
         t0 = time.perf_counter()
         frame = Frame(self._frame_id, float(t), image, self.camera, self.config.pyramid_levels)
         self._frame_id += 1
+        self.map.points.newest_frame = frame.id
         timings["pyramid"] = _ms(t0)
         if self.last is None:
             result, keyframe = self._initialize(frame, timings)
