@@ -84,7 +84,7 @@ def test_a_keyframe_observes_only_live_points_after_its_slots_are_recycled():
     slot = m.add_keyframe(kf)
     m.points.delete(ids[:8])
     for _ in range(RELEASE_DELAY):
-        m.points.step()
+        m.points.step(0)
     m.prune_observations()
     reused = _add(m.points, 8)
     assert np.intersect1d(reused, kf.feat_point).size == 8
