@@ -104,11 +104,9 @@ def tukey_scale(residuals):
 
 
 @numba.njit(cache=True, nogil=True)
-def _normal_equations(params, flat, off, w, h, level, patches, jac, valid, xyz, T_cur_ref, c):
+def _normal_equations(res, rows, jac, c):
     """H, b, mean Tukey cost (cut-off c; inf for squared residuals) and pixel count of the
-    photometric error at T_cur_ref."""
-    res, rows = _patch_residuals(params, flat, off, w, h, level, patches, valid, xyz,
-                                 T_cur_ref)
+    residuals `res` of patches `rows` (_patch_residuals)."""
     H = np.zeros((6, 6))
     b = np.zeros(6)
     cost = 0.0
@@ -144,20 +142,16 @@ def align_level(params, flat, off, w, h, level, patches, jac, valid, xyz, T_cur_
     """Gauss-Newton at one level (Tukey-weighted with `robust`, the scale from the residuals
     at T_cur_ref); returns the refined T_cur_ref and the pixel count used."""
     T = T_cur_ref.copy()
-    c = np.inf
-    if robust:
-        res, _ = _patch_residuals(params, flat, off, w, h, level, patches, valid, xyz, T)
-        c = tukey_scale(res.ravel())
-    H, b, cost, count = _normal_equations(params, flat, off, w, h, level, patches, jac, valid,
-                                          xyz, T, c)
+    res, rows = _patch_residuals(params, flat, off, w, h, level, patches, valid, xyz, T)
+    c = tukey_scale(res.ravel()) if robust else np.inf
+    H, b, cost, count = _normal_equations(res, rows, jac, c)
     for _ in range(iterations):
         if count < 6 * N4:
             break
         xi = np.linalg.solve(H + 1e-9 * np.eye(6), b)
         T_new = T @ exp_se3(-xi)
-        H_new, b_new, cost_new, count_new = _normal_equations(params, flat, off, w, h, level,
-                                                              patches, jac, valid, xyz, T_new,
-                                                              c)
+        res, rows = _patch_residuals(params, flat, off, w, h, level, patches, valid, xyz, T_new)
+        H_new, b_new, cost_new, count_new = _normal_equations(res, rows, jac, c)
         if cost_new > cost or count_new < 6 * N4:
             break
         T, H, b, cost, count = T_new, H_new, b_new, cost_new, count_new
