@@ -65,6 +65,11 @@ def nearest_sample(times: np.ndarray, t: float) -> int:
     return int(np.clip(np.searchsorted(times, t), 0, len(times) - 1))
 
 
+def pressure_hpa(altitude_m: float) -> float:
+    """Standard-atmosphere static pressure at an altitude above sea level."""
+    return SEA_LEVEL_HPA * (1 - 2.25577e-5 * altitude_m) ** 5.25588
+
+
 def sensor_message(mav: mavlink2.MAVLink, name: str, t: float, boot_ms: int,
                     vehicle: Vehicle) -> object:
     """One stream message of kind `name` for vehicle time `t`."""
@@ -77,9 +82,9 @@ def sensor_message(mav: mavlink2.MAVLink, name: str, t: float, boot_ms: int,
     if name == "ATTITUDE":
         return mav.attitude_encode(boot_ms, roll, pitch, yaw, *s["rates"])
     if name == "HIGHRES_IMU":
-        pressure = SEA_LEVEL_HPA * (1 - 2.25577e-5 * baro_alt) ** 5.25588
         return mav.highres_imu_encode(boot_ms * 1000, *s["specific_force"], *s["rates"],
-                                      0.2, 0.0, 0.4, pressure, 0.0, baro_alt, 25.0, 0x1FFF)
+                                      0.2, 0.0, 0.4, pressure_hpa(baro_alt), 0.0, baro_alt,
+                                      25.0, 0x1FFF)
     if name == "SCALED_IMU":
         accel_mg = (s["specific_force"] / GRAVITY * 1000).round().astype(int)
         gyro_mrad = (s["rates"] * 1000).round().astype(int)
@@ -93,8 +98,7 @@ def sensor_message(mav: mavlink2.MAVLink, name: str, t: float, boot_ms: int,
                                           mavlink2.MAV_DISTANCE_SENSOR_LASER, 0,
                                           mavlink2.MAV_SENSOR_ROTATION_PITCH_270, 0)
     if name == "SCALED_PRESSURE":
-        pressure = SEA_LEVEL_HPA * (1 - 2.25577e-5 * baro_alt) ** 5.25588
-        return mav.scaled_pressure_encode(boot_ms, pressure, 0.0, 2500)
+        return mav.scaled_pressure_encode(boot_ms, pressure_hpa(baro_alt), 0.0, 2500)
     if name == "ALTITUDE":
         return mav.altitude_encode(boot_ms * 1000, *[baro_alt] * 6)
     raise ValueError(f"no stream called {name}")

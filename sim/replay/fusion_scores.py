@@ -48,12 +48,16 @@ def nees_per_dof(errors: np.ndarray, covariances: np.ndarray) -> float | None:
     return float(np.mean(values)) if values else None
 
 
+def yaw_differences(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
+    """Yaw of R_a R_b^T for each pair of (N, 3, 3) rotations, radians in (-pi, pi]."""
+    delta = np.einsum("nij,nkj->nik", R_a, R_b)
+    return np.arctan2(delta[:, 1, 0], delta[:, 0, 0])
+
+
 def heading_errors_deg(aligned: Aligned) -> np.ndarray:
     """Yaw of R_est R_gt^T for each matched pose, degrees in (-180, 180]."""
-    R_est = aligned.estimate.rotations.as_matrix()
-    R_gt = aligned.groundtruth.rotations.as_matrix()
-    delta = np.einsum("nij,nkj->nik", R_est, R_gt)
-    return np.degrees(np.arctan2(delta[:, 1, 0], delta[:, 0, 0]))
+    return np.degrees(yaw_differences(aligned.estimate.rotations.as_matrix(),
+                                      aligned.groundtruth.rotations.as_matrix()))
 
 
 def takeoff_time(flight: Trajectory, from_t: float) -> tuple[float | None, float]:

@@ -14,6 +14,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from calib.errors import InputError
+from sim.replay.fusion_scores import yaw_differences
 from sim.sequence import Sequence
 
 MAX_SEEDS = 100
@@ -44,10 +45,8 @@ def compass_bias_deg(sequence: Sequence) -> float | None:
     sensors, path = sequence.extras.get("sensors"), sequence.extras.get("path")
     if sensors is None or path is None:
         return None
-    true = path.rotation(sensors.t)
-    reported = Rotation.from_quat(sensors.attitude).as_matrix()
-    delta = np.einsum("nij,nkj->nik", reported, true)
-    yaw = np.arctan2(delta[:, 1, 0], delta[:, 0, 0])
+    yaw = yaw_differences(Rotation.from_quat(sensors.attitude).as_matrix(),
+                          path.rotation(sensors.t))
     return float(np.degrees(np.arctan2(np.mean(np.sin(yaw)), np.mean(np.cos(yaw)))))
 
 
