@@ -20,6 +20,7 @@ from daemon.config import MountingConfig
 from daemon.fusion.config import FusionConfig
 from daemon.fusion.scene import SceneResult
 from daemon.mounting import body_from_camera
+from sim.replay.fusion_scores import turned_about_down
 from vo.result import FrameResult
 
 GRAVITY = np.array([0.0, 0.0, 9.80665])
@@ -144,6 +145,7 @@ class Flight:
     messages: list = field(default_factory=list)  # (arrival, msg)
     frames: list = field(default_factory=list)  # (ready time, FrameResult, t_capture)
     map_scales: list = field(default_factory=list)  # VO units per metre of each map, at start
+    compass_bias_deg: float = 0.0  # of the attitude the autopilot reports
 
 
 def autopilot_messages(truth: Truth, opt: SensorOptions, rng: np.random.Generator) -> list:
@@ -270,10 +272,11 @@ def simulate(sensors: SensorOptions | None = None, tracker: TrackerOptions | Non
     rng = np.random.default_rng(seed)
     truth = truth or survey_flight()
     mounting = mounting or MountingConfig()
+    sensors = sensors or SensorOptions()
     scales: list = []
-    messages = autopilot_messages(truth, sensors or SensorOptions(), rng)
+    messages = autopilot_messages(truth, sensors, rng)
     frames = tracker_results(truth, tracker or TrackerOptions(), mounting, rng, scales)
-    return Flight(truth, messages, frames, scales)
+    return Flight(truth, messages, frames, scales, sensors.heading_bias_deg)
 
 
 def run(flight: Flight, estimator, timings: list | None = None) -> list:
@@ -322,20 +325,23 @@ class Score:
 
 def score(flight: Flight, estimates: list) -> Score:
     """Compare published estimates with the truth from the first one on (it defines the local
-    frame's origin, daemon.fusion.state.NavFilter.fix_origin): no other alignment."""
+    frame's origin, daemon.fusion.state.NavFilter.fix_origin): no other alignment. NEES in
+    the autopilot's heading frame (sim/replay/fusion_scores.py)."""
     truth = flight.truth
     published = [(t_capture, e) for t_capture, e in estimates if e is not None]
     if published:
         first_t, first = published[0]
-        origin = truth.p[truth.at(first_t - BOOT_OFFSET)] - first.position
+        start = truth.p[truth.at(first_t - BOOT_OFFSET)]
     pos_err, head_err, vel_err, nees, nees_v, times = [], [], [], [], [], []
     for t_capture, e in published:
         t = t_capture - BOOT_OFFSET
         i = truth.at(t)
-        err = e.position - (truth.p[i] - origin)
-        pos_err.append(err)
-        vel_err.append(e.velocity_local - truth.v[i])
-        err_b = e.R_local_body.T @ vel_err[-1]
+        moved = np.array([truth.p[i] - start, truth.v[i]])
+        moved_frame = turned_about_down(moved, flight.compass_bias_deg)
+        pos_err.append(e.position - first.position - moved[0])
+        vel_err.append(e.velocity_local - moved[1])
+        err = e.position - first.position - moved_frame[0]
+        err_b = e.R_local_body.T @ (e.velocity_local - moved_frame[1])
         nees_v.append(err_b @ np.linalg.solve(e.velocity_covariance[:3, :3], err_b) / 3.0)
         nees.append(err @ np.linalg.solve(e.pose_covariance[:3, :3], err) / 3.0)
         R = e.R_local_body @ truth.R[i].T

@@ -18,7 +18,7 @@ from daemon.config import Config, replace
 from daemon.mounting import body_from_camera
 from sim.cli import main
 from sim.metrics import align_trajectories
-from sim.replay.fusion_scores import fusion_scores, nees_per_dof, takeoff_time
+from sim.replay.fusion_scores import fusion_scores, nees_per_dof, takeoff_time, velocity_at
 from sim.replay.harness import run_replay
 from sim.replay.lockstep import autopilot_messages
 from sim.replay.report import build_report, format_report
@@ -156,6 +156,27 @@ def test_nees_heading_and_take_off_scores() -> None:
     assert scores["heading_rms_deg"] == pytest.approx(5.0)
     assert scores["nees_position"] == pytest.approx(1 / 3)
     assert scores["ate_pct_distance"] == pytest.approx(100 * 0.3 / scores["distance_m"])
+
+
+def test_nees_is_scored_in_the_autopilots_heading_frame() -> None:
+    """A flight flown exactly in a frame turned by the compass bias: true-north errors (ATE,
+    heading), none in the frame the poses and their covariance are in."""
+    t = np.linspace(0.0, 10.0, 101)
+    truth = Trajectory(t, np.column_stack([3.0 * t, t, -5.0 + 0 * t]),
+                       np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1)))
+    turn = Rotation.from_euler("z", -2.0, degrees=True)
+    estimate = Trajectory(t, turn.apply(truth.positions - truth.positions[0])
+                          + truth.positions[0], np.tile(turn.as_quat(), (len(t), 1)))
+    aligned = align_trajectories(truth, estimate, "none")
+    true_velocity = velocity_at(truth, t)
+    velocity_error = turn.apply(true_velocity) - true_velocity
+    covariance = np.tile(1e-4 * np.eye(3), (len(t), 1, 1))
+    scores = fusion_scores(aligned, truth, velocity_error, covariance, covariance, 0.0, -2.0)
+    assert scores["heading_rms_deg"] == pytest.approx(2.0)
+    assert scores["ate_pct_distance"] > 1.0
+    assert scores["nees_position"] == pytest.approx(0.0, abs=1e-6)
+    assert scores["nees_velocity"] == pytest.approx(0.0, abs=1e-3)
+    assert scores["compass_bias_deg"] == -2.0
 
 
 def test_barometer_alone_gives_the_scale_on_the_take_off() -> None:

@@ -74,7 +74,10 @@ class FusionConfig:
     # autopilot attitude (ATTITUDE): roll/pitch and compass heading noise
     attitude_std_deg: float = 0.5
     heading_std_deg: float = 3.0
-    heading_bias_std_deg: float = 1.0  # compass bias: averaging cannot remove it
+    # compass bias: averaging cannot remove it. It turns the local frame (north is the
+    # compass's) against true north, so it is in the publication gate's heading std, not in
+    # the covariance sent (the autopilot fuses our poses in its own heading frame)
+    heading_bias_std_deg: float = 1.0
     attitude_timeout_s: float = 0.5
     # VO rotation drift against the autopilot's, per sqrt(metre flown) like the scale's
     alignment_walk_deg_per_sqrt_m: float = 0.1

@@ -26,33 +26,24 @@ def quality_percent(position_cov: np.ndarray, good_std_m: float) -> int:
     return int(np.clip(round(100.0 * good_std_m / max(std, good_std_m)), 1, 100))
 
 
-def turned(v: np.ndarray, angle_std: float) -> np.ndarray:
-    """Covariance of vector v turned about the down axis by an angle of std angle_std (rad)."""
-    w = np.array([-v[1], v[0], 0.0]) * angle_std
-    return np.outer(w, w)
-
-
 def build_estimate(f: NavFilter, cfg: FusionConfig, *, R_w_b: np.ndarray, rot_cov_w: np.ndarray,
                    rates: np.ndarray, t_capture: float, t_source: float, state: str,
                    reset_counter: int) -> VisionEstimate | None:
     """The estimate to send, or None if anything in it is not finite. Its covariance is the
     filter's, with nothing added: the autopilots apply their own floors (VISO_POS_M_NSE,
-    EKF2_EVP_NOISE), and a floor here would make the covariance dishonest."""
+    EKF2_EVP_NOISE), and a floor here would make the covariance dishonest. It describes errors
+    in the local frame, whose north is the autopilot's compass north: the compass bias turns
+    that frame against true north, and the autopilot, fusing our poses in its own heading frame,
+    neither sees nor could use that (carried as position noise it grew with the distance from
+    the start, 0.5 m std at 30 m, and would have made the autopilot trust the poses less the
+    farther it flew)."""
     R_l_b = f.R_nom @ R_w_b
     factor = inflation(cfg, state)
     pose_cov = np.zeros((6, 6))
     pose_cov[:3, :3] = factor * f.P[POS, POS]
     pose_cov[3:, 3:] = factor * (f.P[THETA, THETA] + f.R_nom @ rot_cov_w @ f.R_nom.T)
-    # the compass bias turns the whole local frame (about where it starts) against true north:
-    # heading, and positions and velocities in proportion to their size (a 1.6 deg bias put
-    # survey-down 0.7 m off 24 m out, five times the filter's own std)
-    bias = np.radians(cfg.heading_bias_std_deg)
-    pose_cov[5, 5] += bias**2
-    offset = f.x[POS] - (f.origin if f.origin is not None else f.x[POS])
-    pose_cov[:3, :3] += turned(offset, bias)
     vel_cov = np.zeros((6, 6))
-    vel_cov[:3, :3] = factor * (R_l_b.T @ f.P[VEL, VEL] @ R_l_b) + R_l_b.T @ turned(
-        f.x[VEL], bias) @ R_l_b
+    vel_cov[:3, :3] = factor * (R_l_b.T @ f.P[VEL, VEL] @ R_l_b)
     vel_cov[3:, 3:] = np.eye(3) * cfg.rate_std_rad_s**2
     velocity = f.x[VEL].copy()
     estimate = VisionEstimate(

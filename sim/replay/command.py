@@ -18,7 +18,7 @@ from daemon.run_command import setup_logging
 from sim.replay.flight import SENSOR_STREAMS, is_ned
 from sim.replay.harness import choose_estimator, during_replay, run_replay
 from sim.replay.report import build_report, format_report
-from sim.replay.seeds import compass_bias_deg, format_seeds, parse_seeds, summarize
+from sim.replay.seeds import format_seeds, parse_seeds, summarize
 
 DEFAULT_PRESET = "hover-down"
 
@@ -126,18 +126,16 @@ def _run_seeds(args: argparse.Namespace, config: Config) -> int:
     if args.plot is not None:
         raise InputError("--plot draws one run: use --seed N with it, not --seeds")
     seeds = parse_seeds(args.seeds)
-    reports, biases, exit_code = [], [], 0
+    reports, exit_code = [], 0
     for seed in seeds:
         sequence = _open(args.sequence, seed)
         out_dir = (args.out or Path("sdvl-replay") / sequence.name) / f"seed{seed}"
         replay, report, _, _ = _replay(sequence, config, args, out_dir)
         reports.append(report)
-        biases.append(compass_bias_deg(sequence))
         exit_code = exit_code or replay.exit_code
     summary = summarize(reports)
     if args.json:
-        print(json.dumps({"seeds": seeds, "runs": reports, "compass_bias_deg": biases,
-                          "summary": summary}))
+        print(json.dumps({"seeds": seeds, "runs": reports, "summary": summary}))
     else:
-        print(format_seeds(seeds, reports, biases, summary))
+        print(format_seeds(seeds, reports, summary))
     return exit_code

@@ -11,19 +11,25 @@ counted from the take-off, bounds the scale's convergence time.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from sim.metrics import Aligned
+from sim.sequence import Sequence
 from sim.trajectory import Trajectory
 
 TAKEOFF_CLIMB_M = 0.1  # the take-off starts when the height first changed by this much
+VELOCITY_DT = 0.05  # ground-truth velocity: central difference over +-50 ms
 
 FUSION_KEYS = {
     "distance_m": "distance flown between the first and last scored pose, metres",
     "ate_pct_distance": "ate_rmse_m as a percentage of distance_m",
     "heading_rms_deg": "heading (yaw) error RMS of the received attitude, degrees",
     "heading_max_deg": "largest absolute heading error, degrees",
+    "compass_bias_deg": "heading error of the attitude the autopilot reported, its mean over "
+                        "the flight (its compass bias), degrees (None: no synthetic sensors)",
     "nees_position": "position NEES per degree of freedom, mean over the scored poses, "
-                     "with the covariance the message carried (1 = consistent)",
+                     "with the covariance the message carried, in the autopilot's heading "
+                     "frame (the truth turned by compass_bias_deg; 1 = consistent)",
     "nees_velocity": "velocity NEES per degree of freedom, as nees_position",
     "tracking_start_s": "sequence time of the first tracked frame, s",
     "first_publish_s": "sequence time of the first received pose, s",
@@ -54,6 +60,34 @@ def yaw_differences(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
     return np.arctan2(delta[:, 1, 0], delta[:, 0, 0])
 
 
+def compass_bias_deg(sequence: Sequence) -> float | None:
+    """Mean heading error of the attitude the simulated autopilot reports (its compass bias),
+    degrees; None for a sequence without synthetic sensors."""
+    extras = getattr(sequence, "extras", None) or {}
+    sensors, path = extras.get("sensors"), extras.get("path")
+    if sensors is None or path is None:
+        return None
+    yaw = yaw_differences(Rotation.from_quat(sensors.attitude).as_matrix(),
+                          path.rotation(sensors.t))
+    return float(np.degrees(np.arctan2(np.mean(np.sin(yaw)), np.mean(np.cos(yaw)))))
+
+
+def turned_about_down(vectors: np.ndarray, angle_deg: float | None) -> np.ndarray:
+    """(N, 3) vectors turned about the down axis by `angle_deg` (None: unchanged): NED truth
+    as seen in a frame whose north is off by that angle."""
+    if not angle_deg:
+        return vectors
+    return Rotation.from_euler("z", angle_deg, degrees=True).apply(vectors)
+
+
+def velocity_at(trajectory: Trajectory, times: np.ndarray) -> np.ndarray:
+    """Ground-truth velocity by central differences of the interpolated positions."""
+    def at(ts: np.ndarray) -> np.ndarray:
+        return np.column_stack([np.interp(ts, trajectory.t, trajectory.positions[:, i])
+                                for i in range(3)])
+    return (at(times + VELOCITY_DT) - at(times - VELOCITY_DT)) / (2 * VELOCITY_DT)
+
+
 def heading_errors_deg(aligned: Aligned) -> np.ndarray:
     """Yaw of R_est R_gt^T for each matched pose, degrees in (-180, 180]."""
     return np.degrees(yaw_differences(aligned.estimate.rotations.as_matrix(),
@@ -75,11 +109,18 @@ def takeoff_time(flight: Trajectory, from_t: float) -> tuple[float | None, float
 
 def fusion_scores(aligned: Aligned, flight: Trajectory, velocity_error: np.ndarray,
                   position_cov: np.ndarray, velocity_cov: np.ndarray,
-                  tracking_start_s: float | None) -> dict:
+                  tracking_start_s: float | None, compass_bias: float | None = None) -> dict:
     """The FUSION_KEYS for matched poses: `velocity_error` and the covariances (N, 3, 3) in
-    the local frame are rows of the aligned estimate."""
+    the local frame are rows of the aligned estimate; `compass_bias` in degrees."""
     t = aligned.estimate.t
-    error = aligned.estimate.positions - aligned.groundtruth.positions
+    truth = aligned.groundtruth.positions
+    error = aligned.estimate.positions - truth
+    start = truth[0]
+    frame_error = aligned.estimate.positions - start - turned_about_down(truth - start,
+                                                                          compass_bias)
+    true_velocity = velocity_at(flight, t)
+    frame_velocity_error = (velocity_error + true_velocity
+                            - turned_about_down(true_velocity, compass_bias))
     inside = (flight.t >= t[0]) & (flight.t <= t[-1])
     path = flight.positions[inside]
     distance = float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1)))
@@ -91,8 +132,9 @@ def fusion_scores(aligned: Aligned, flight: Trajectory, velocity_error: np.ndarr
         "ate_pct_distance": 100.0 * ate / distance if distance > 0 else None,
         "heading_rms_deg": float(np.sqrt(np.mean(heading**2))),
         "heading_max_deg": float(np.max(np.abs(heading))),
-        "nees_position": nees_per_dof(error, position_cov),
-        "nees_velocity": nees_per_dof(velocity_error, velocity_cov),
+        "compass_bias_deg": compass_bias,
+        "nees_position": nees_per_dof(frame_error, position_cov),
+        "nees_velocity": nees_per_dof(frame_velocity_error, velocity_cov),
         "tracking_start_s": tracking_start_s,
         "first_publish_s": float(t[0]),
         "takeoff_s": takeoff,

@@ -8,6 +8,7 @@ the simulated autopilot and the frames come from the sequence.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import resource
 import tempfile
 import time
@@ -32,6 +33,7 @@ from sim.replay.flight import (
     sensor_streams,
     vehicle_trajectory,
 )
+from sim.replay.fusion_scores import compass_bias_deg
 from sim.replay.prerender import prerendered, renders_on_the_fly
 from sim.replay.progress import Progress
 from sim.replay.recording import Recorder
@@ -112,6 +114,7 @@ class ReplayRun:
     exit_code: int
     stats: dict = field(default_factory=dict)
     without: tuple[str, ...] = ()  # sensors the autopilot did not stream
+    compass_bias_deg: float | None = None  # of the simulated autopilot's attitude
 
 
 def during_replay(trajectory: Trajectory, run: ReplayRun) -> Trajectory:
@@ -186,8 +189,17 @@ def run_replay(sequence: object, config: Config, realtime: bool,
     if lockstep:
         flight = vehicle_trajectory(sequence.groundtruth, config,
                                     sequence.extras.get("T_ned_world"))
-        return run_lockstep(sequence, config, FirstFrames(sequence, max_frames), flight,
-                            without, make_tracker, show)
+        run = run_lockstep(sequence, config, FirstFrames(sequence, max_frames), flight,
+                           without, make_tracker, show)
+    else:
+        run = _replay_with_link(sequence, config, realtime, max_frames, show, make_tracker,
+                                without)
+    return dataclasses.replace(run, compass_bias_deg=compass_bias_deg(sequence))
+
+
+def _replay_with_link(sequence: object, config: Config, realtime: bool,
+                      max_frames: int | None, show: Progress, make_tracker: Callable,
+                      without: tuple[str, ...]) -> ReplayRun:
     show.note(f"replay {sequence.name}: warming up the tracker (the first run after an install "
               "compiles its kernels: about a minute)")
     with tempfile.TemporaryDirectory(prefix="sdvl-replay-") as folder:

@@ -12,13 +12,12 @@ from scipy.spatial.transform import Rotation
 
 from sim.metrics import Aligned, align_trajectories, evaluate, interpolate
 from sim.replay.autopilot_process import VisionMessage
-from sim.replay.fusion_scores import FUSION_KEYS, fusion_scores
+from sim.replay.fusion_scores import FUSION_KEYS, fusion_scores, velocity_at
 from sim.replay.harness import ReplayRun
 from sim.replay.recording import stats_ms
 from sim.trajectory import Trajectory, write_tum
 
 STAMP_TOLERANCE_S = 1e-4  # time_usec is t_capture in whole microseconds
-VELOCITY_DT = 0.05  # ground-truth velocity: central difference over +-50 ms
 
 KEYS = {
     "sequence": "sequence or preset name",
@@ -159,14 +158,6 @@ def start_aligned(flight: Trajectory, estimate: Trajectory) -> Trajectory:
     return Trajectory(flight.t, flight.positions + shift, flight.quaternions)
 
 
-def velocity_at(trajectory: Trajectory, times: np.ndarray) -> np.ndarray:
-    """Ground-truth velocity by central differences of the interpolated positions."""
-    def at(ts: np.ndarray) -> np.ndarray:
-        return np.column_stack([np.interp(ts, trajectory.t, trajectory.positions[:, i])
-                                for i in range(3)])
-    return (at(times + VELOCITY_DT) - at(times - VELOCITY_DT)) / (2 * VELOCITY_DT)
-
-
 def velocity_errors(aligned: Aligned, received: Received, groundtruth: Trajectory
                     ) -> np.ndarray:
     """Errors of the received velocities, rotated and scaled by the alignment (m/s), one row
@@ -254,7 +245,7 @@ def accuracy(run: ReplayRun, received: Received,
         tracked = [r["t_source"] for r in run.rows if r["has_pose"]]
         out.update(fusion_scores(aligned, groundtruth, velocity_error,
                                  received.position_cov[index], received.velocity_cov[index],
-                                 min(tracked) if tracked else None))
+                                 min(tracked) if tracked else None, run.compass_bias_deg))
     return out, aligned, groundtruth
 
 
