@@ -98,7 +98,12 @@ class TrackerConfig:
     kf_count_inliers: bool = True
     max_keyframes: int = 30
     covisible_min_shared: int = 10
+    # threaded mapping: at most this many tracked frames wait for (or are in) their mapping
+    # step; tracking waits for room, so none is dropped from mapping
     mapping_queue_size: int = 4
+    # a frame is rated good only while at most this many tracked frames wait for mapping
+    # (threaded): tracked against a map that lags, its pose may be off
+    mapping_lag_good: int = 1
 
     # local bundle adjustment (6.6.4) on each new keyframe: iterations before and after the
     # chi-square outlier cut; skipped while the mapping thread has frames waiting
