@@ -53,7 +53,10 @@ class MappingBacklog:
     def __len__(self) -> int:
         """Frames tracked and not mapped yet (waiting or being mapped)."""
         with self._cond:
-            return len(self._items) + int(self._busy)
+            return self._unmapped()
+
+    def _unmapped(self) -> int:
+        return len(self._items) + int(self._busy)
 
     def waiting(self) -> int:
         """Frames waiting, not counting the one being mapped."""
@@ -67,8 +70,7 @@ class MappingBacklog:
     def wait_for_room(self, timeout: float | None = None) -> bool:
         """Block until has_room (at most timeout seconds); whether it has."""
         with self._cond:
-            return self._cond.wait_for(lambda: len(self._items) + self._busy < self.size,
-                                       timeout)
+            return self._cond.wait_for(lambda: self._unmapped() < self.size, timeout)
 
     def put(self, item) -> None:
         """Append an item (None stops the mapping thread)."""
@@ -245,7 +247,7 @@ class Tracker:
         timings["track"] = _ms(t0)
         if result.quality == "good" and unmapped > self.config.mapping_lag_good:
             result.quality = "insufficient"  # the map lags: its pose may be off
-        self._idle.set()  # tracked: a BA may go on (a full mapping queue must not stall it)
+        self._idle.set()  # tracked: a BA may go on
         if result.quality == "lost":
             self._on_lost()  # outside the map lock: a reset joins the mapping thread
         # mapping follows frames tracked against the map (a new map's frames are in it
