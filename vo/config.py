@@ -102,7 +102,9 @@ class TrackerConfig:
     # step; tracking waits for room (the service skips frames meanwhile), so none is dropped
     # from mapping. Dropped frames starved the depth filter (emulated mapping at half the
     # frame rate, sdvl track --mapping-period 2, survey-down tracker seeds 0-2: 9.3/8.6/9.4 m,
-    # ~960 frames rated good). Waiting does not make a slow mapper accurate: 7.6/7.3/8.5 m
+    # ~960 frames rated good; mapping at the frame rate but keyframe steps 4 periods long:
+    # 53-59 frames dropped, 7.1/7.8/8.0 m, now 2.7/0.13/7.4 m with 46-52 frames skipped).
+    # Waiting does not make a mapper at half rate accurate: 7.6/7.3/8.5 m
     # (size 2: 2.3/2.1/0.19 m, the map only one frame behind; tracking every 2nd frame
     # sequentially gives 0.21 m, every 3rd 3.9 m on seed 0); what it buys is mapping_lag_good
     mapping_queue_size: int = 4
