@@ -83,6 +83,8 @@ class TrackingThread(threading.Thread):
 
     def _loop(self) -> None:
         while not self.stopping.is_set():
+            if not self._mapping_has_room():
+                continue
             frame = self.slot.get(timeout=0.1)
             if frame is None:
                 if self.slot.closed:
@@ -98,6 +100,13 @@ class TrackingThread(threading.Thread):
             estimate = self.estimator.on_frame(result, frame.t_capture)
             self.deliver(TrackedFrame(frame.index, frame.t_source, frame.t_capture, result,
                                       estimate, t_start, track_s, time.monotonic()))
+
+    def _mapping_has_room(self) -> bool:
+        """Wait (at most 0.1 s) until the tracker's mapping backlog has room for a frame, so
+        the frame taken next is the newest: a slow mapping thread makes the service skip whole
+        frames (the slot counts them dropped) rather than track against a map that lags."""
+        wait = getattr(self.tracker, "wait_for_mapping", None)
+        return wait is None or wait(0.1)
 
     def _gate_mapping(self) -> None:
         """Put the handoff gate on the tracker's mapping thread (again after a new map, which

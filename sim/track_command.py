@@ -32,6 +32,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="TOML file with tracker parameters (top level or [tracker])")
     parser.add_argument("--threaded", action="store_true",
                         help="mapping in its own thread (default: one mapping step per frame)")
+    parser.add_argument("--mapping-period", type=int, default=None, metavar="P",
+                        help="emulate a slow mapping thread, deterministically: each frame's "
+                             "mapping step takes P frame periods (frames that come while the "
+                             "mapping backlog is full are skipped)")
+    parser.add_argument("--mapping-delay", type=int, default=0, metavar="D",
+                        help="with --mapping-period: a mapping step starts D frame periods "
+                             "after its frame at the earliest")
     parser.add_argument("--max-frames", type=int, default=None, metavar="N")
     parser.add_argument("--size", default=None, metavar="WxH",
                         help="image size for a synthetic preset (default: the preset's)")
@@ -86,6 +93,12 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--max-frames must be positive")
     if args.memory is not None and args.memory <= 0:
         raise InputError("--memory must be positive")
+    slow = None
+    if args.mapping_period is not None:
+        if args.threaded or args.mapping_period < 1 or args.mapping_delay < 0:
+            raise InputError("--mapping-period needs no --threaded, a period >= 1 and a "
+                             "delay >= 0")
+        slow = (args.mapping_period, args.mapping_delay)
     config = TrackerConfig.from_toml(args.config) if args.config else TrackerConfig()
     size = None
     if args.size is not None:
@@ -95,7 +108,8 @@ def run(args: argparse.Namespace) -> int:
     sequence = resolve_sequence(args.sequence, size)
     rows: list[dict] | None = None if args.frames_csv is None else []
     report, estimate = track_sequence(sequence, config, args.threaded, args.max_frames,
-                                      args.quiet, args.memory, frame_rows=rows)
+                                      args.quiet, args.memory, frame_rows=rows,
+                                      slow_mapping=slow)
     if args.out is not None and estimate is not None:
         write_tum(estimate, args.out)
     if rows is not None:
@@ -106,16 +120,23 @@ def run(args: argparse.Namespace) -> int:
 
 def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
                    quiet: bool, memory_every: int | None = None,
-                   paced: bool = False,
-                   frame_rows: list[dict] | None = None) -> tuple[dict, Trajectory | None]:
+                   paced: bool = False, frame_rows: list[dict] | None = None,
+                   slow_mapping: tuple[int, int] | None = None
+                   ) -> tuple[dict, Trajectory | None]:
     """Run the tracker over a sequence: the report (see build_report) and the trajectory;
     with `memory_every`, the report has "memory" samples and "peak_rss_mb"; `paced` offers
     each frame no earlier than its timestamp after the first (the camera's rate, so a mapping
     thread works in the gaps as in flight) instead of as fast as tracking goes; `frame_rows`
-    gets one frame_row per frame."""
+    gets one frame_row per frame tracked; `slow_mapping` (period, delay) emulates a slow
+    mapping thread (sim.slow_mapping), and the report counts the frames it "skipped"."""
+    from sim.slow_mapping import SlowMapping
     from vo.tracker import Tracker
 
-    tracker = Tracker(sequence.camera, config, threaded=threaded)
+    tracker = Tracker(sequence.camera, config, threaded=threaded,
+                      stepped_mapping=slow_mapping is not None)
+    offer = tracker.process if slow_mapping is None else SlowMapping(tracker,
+                                                                     *slow_mapping).offer
+    skipped = 0
     times, poses, timings, qualities, segment = [], [], [], [], []
     n_frames = 0
     memory = []
@@ -126,8 +147,11 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
     try:
         for t, image in sequence.frames(max_frames):
             pace(t)
-            result = tracker.process(image, t)
+            result = offer(image, t)
             n_frames += 1
+            if result is None:
+                skipped += 1
+                continue
             qualities.append(result.quality)
             if frame_rows is not None:
                 frame_rows.append(frame_row(result))
@@ -152,7 +176,8 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
         print(file=sys.stderr)
     estimate = Trajectory.from_matrices(np.array(times), np.array(poses)) if poses else None
     report = build_report(sequence, n_frames, estimate, np.array(segment), timings, qualities,
-                          first_pose_s, tracker.dropped_mapping_frames)
+                          first_pose_s)
+    report["skipped"] = skipped
     # local BAs the mapping thread skipped or ended early for a waiting frame (current map)
     report["ba_skipped"] = tracker.mapper.skipped_ba
     report["ba_shortened"] = tracker.mapper.shortened_ba
@@ -217,7 +242,7 @@ def memory_sample(tracker, frame: int) -> dict:
 
 def build_report(sequence, n_frames: int, estimate: Trajectory | None, segment: np.ndarray,
                  timings: list[dict[str, float]], qualities: list[str],
-                 first_pose_s: float | None, dropped: int) -> dict:
+                 first_pose_s: float | None) -> dict:
     """The numbers `sdvl track` prints. Each map segment (a re-initialisation starts a new
     one) has its own scale and frame, so the ATE over several segments is only indicative;
     the longest segment's ATE is given too."""
@@ -239,7 +264,6 @@ def build_report(sequence, n_frames: int, estimate: Trajectory | None, segment: 
         "stages_mean": {k: v["mean"] for k, v in stats.items()},
         "qualities": {q: qualities.count(q) for q in sorted(set(qualities))},
         "first_pose_s": first_pose_s,
-        "dropped_mapping_frames": dropped,
         "segments": int(segment.max()) + 1 if len(segment) else 0,
         "longest_segment_poses": 0,
         "longest_segment_ate_rmse_m": None,

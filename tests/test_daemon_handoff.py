@@ -8,9 +8,11 @@ import threading
 import time
 from types import SimpleNamespace
 
+import numpy as np
 from daemon_helpers import FakeTracker, RunningService, service_config, wait_for
 
-from daemon.tracking import HandoffGate
+from daemon.frames import Frame, LatestSlot
+from daemon.tracking import HandoffGate, TrackingThread
 from sim.autopilot import SimAutopilot
 
 
@@ -80,3 +82,41 @@ def test_service_releases_each_mapping_step_after_the_frame_was_handled():
     early = [t for t, started in steps if t not in handled or started < handled[t]]
     assert early == []
     assert max(started - handled[t] for t, started in steps) < 0.04  # no timeouts
+
+
+class _SlowMappingTracker(FakeTracker):
+    """A tracker stand-in whose mapping backlog is full until `room` is set."""
+
+    def __init__(self):
+        super().__init__()
+        self.room = threading.Event()
+        self.seen: list[int] = []
+
+    def wait_for_mapping(self, timeout=None):
+        return self.room.wait(timeout)
+
+    def process(self, image, t):
+        self.seen.append(int(t))
+        return super().process(image, t)
+
+
+def test_tracking_takes_the_newest_frame_once_mapping_has_room():
+    """A slow mapper holds tracking before it takes a frame: the camera's frames meanwhile
+    replace each other in the slot (skipped whole), and the one tracked is the newest."""
+    slot, tracker, delivered = LatestSlot(), _SlowMappingTracker(), []
+    estimator = SimpleNamespace(on_frame=lambda result, t_capture: None)
+    thread = TrackingThread(slot, lambda frame: tracker, estimator, delivered.append,
+                            lambda: None)
+    thread.tracker = tracker
+    thread.start()
+    image = np.zeros((8, 8), np.uint8)
+    for k in range(5):
+        slot.put(Frame(k, float(k), 0.0, image))
+    time.sleep(0.15)
+    assert tracker.seen == []
+    tracker.room.set()
+    assert wait_for(lambda: tracker.seen == [4], 2.0)
+    assert slot.dropped == 4
+    thread.stop()
+    slot.close()
+    thread.join(2.0)

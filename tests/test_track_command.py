@@ -88,3 +88,21 @@ def _rejection_config(tmp_path):
     cfg = tmp_path / "rejection.toml"
     cfg.write_text("outlier_rejection = true\n")
     return cfg
+
+
+def test_emulated_slow_mapping_skips_frames(data_dir, capsys):
+    """--mapping-period 3: mapping at a third of the frame rate, so whole frames are skipped
+    (about two in three once the backlog is full); the same run twice is the same."""
+    args = ["track", str(data_dir / "vamr_ex01_checkerboard736"), "--max-frames", "60",
+            "--json", "--quiet", "--mapping-period", "3"]
+    reports = []
+    for _ in range(2):
+        assert main(args) == 0
+        reports.append(json.loads(capsys.readouterr().out))
+    report = reports[0]
+    assert report["frames"] == 60 and 25 <= report["skipped"] <= 40
+    assert report["tracked"] <= 60 - report["skipped"]
+    assert report["ate_rmse_m"] == reports[1]["ate_rmse_m"]
+    assert main(["track", str(data_dir / "vamr_ex01_checkerboard736"), "--threaded",
+                 "--mapping-period", "2"]) == 2
+    assert "--mapping-period" in capsys.readouterr().err

@@ -105,7 +105,22 @@ class TrackerConfig:
     kf_count_inliers: bool = True
     max_keyframes: int = 30
     covisible_min_shared: int = 10
+    # threaded mapping: at most this many tracked frames wait for (or are in) their mapping
+    # step; tracking waits for room (the service skips frames meanwhile), so none is dropped
+    # from mapping. Dropped frames starved the depth filter (emulated mapping at half the
+    # frame rate, sdvl track --mapping-period 2, survey-down tracker seeds 0-2: 9.3/8.6/9.4 m,
+    # ~960 frames rated good; mapping at the frame rate but keyframe steps 4 periods long:
+    # 53-59 frames dropped, 7.1/7.8/8.0 m, now 2.7/0.13/7.4 m with 46-52 frames skipped).
+    # Waiting does not make a mapper at half rate accurate: 7.6/7.3/8.5 m
+    # (size 2: 2.3/2.1/0.19 m, the map only one frame behind; tracking every 2nd frame
+    # sequentially gives 0.21 m, every 3rd 3.9 m on seed 0); what it buys is mapping_lag_good
     mapping_queue_size: int = 4
+    # a frame is rated good only while at most this many tracked frames wait for mapping
+    # (threaded): tracked against a map that lags, its pose may be far off while matches look
+    # fine. Emulated mapping at 1/2 and 1/3 of the frame rate, survey-down seeds 0-2: frames
+    # rated good with an error over 3x the sequential ATE 991/952/967 and 904/904/904 before,
+    # 6/6/7 and 12/12/12 with this (size 2 never lags by 2: 518/522/29 and 323/306/339)
+    mapping_lag_good: int = 1
 
     # local bundle adjustment (6.6.4) on each new keyframe: iterations before and after the
     # chi-square outlier cut; skipped while the mapping thread has frames waiting

@@ -152,6 +152,8 @@ class Mapper:
         self.map = map_
         self.px_angle = 2.0 * np.arctan(0.5 / np.sqrt(camera.fx * camera.fy))
         self.n_keyframes_added = 0
+        # frames mapped since the last keyframe added: its candidates' depth updates so far
+        self.frames_since_keyframe = 0
         # the tracker says whether there is time for a bundle adjustment (threaded: no frame
         # waiting); skipped ones are counted
         self.ba_allowed: Callable[[], bool] = lambda: True
@@ -207,6 +209,8 @@ class Mapper:
             found_uv = uv[found & ~delete]
         if keyframe:
             self.add_keyframe(frame, found_uv)
+        else:
+            self.frames_since_keyframe += 1
 
     def add_keyframe(self, frame: Frame, occupied_uv: np.ndarray) -> None:
         """Insert `frame` as a keyframe, seed candidates in its empty cells, cap keyframes."""
@@ -215,6 +219,7 @@ class Mapper:
         with self.map.lock:
             slot = self.map.add_keyframe(frame)
         self.n_keyframes_added += 1
+        self.frames_since_keyframe = 0
         depths = self._scene_depths(frame)
         if len(depths) == 0:
             return

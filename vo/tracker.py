@@ -2,14 +2,16 @@
 
 Tracking per frame (6.7): constant-velocity prior, sparse image alignment to the last frame,
 grid-limited matching of map points, Tukey Gauss-Newton pose, quality (6.10). Mapping (6.6)
-runs after each frame (sequential, reproducible) or in its own thread with a bounded queue.
+runs after each frame (sequential, reproducible) or in its own thread with a bounded backlog:
+no tracked frame is dropped from mapping; tracking waits for room instead (a live service
+skips frames meanwhile), and a frame tracked while frames wait for mapping is not rated good.
 """
 
 from __future__ import annotations
 
-import queue
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 
 import cv2
@@ -37,18 +39,74 @@ MIN_POSE_MATCHES = 6
 BA_PAUSE_MAX_S = 0.05
 
 
+class MappingBacklog:
+    """Tracked frames waiting for their mapping step, oldest first, and the one being mapped
+    (by the mapping thread, or by the caller with stepped mapping). It holds `size` frames:
+    tracking starts a frame only while there is room."""
+
+    def __init__(self, size: int):
+        self.size = size
+        self._items: deque = deque()
+        self._busy = False
+        self._cond = threading.Condition()
+
+    def __len__(self) -> int:
+        """Frames tracked and not mapped yet (waiting or being mapped)."""
+        with self._cond:
+            return self._unmapped()
+
+    def _unmapped(self) -> int:
+        return len(self._items) + int(self._busy)
+
+    def waiting(self) -> int:
+        """Frames waiting, not counting the one being mapped."""
+        with self._cond:
+            return len(self._items)
+
+    def has_room(self) -> bool:
+        """True while fewer than `size` frames are unmapped."""
+        return len(self) < self.size
+
+    def wait_for_room(self, timeout: float | None = None) -> bool:
+        """Block until has_room (at most timeout seconds); whether it has."""
+        with self._cond:
+            return self._cond.wait_for(lambda: self._unmapped() < self.size, timeout)
+
+    def put(self, item) -> None:
+        """Append an item (None stops the mapping thread)."""
+        with self._cond:
+            self._items.append(item)
+            self._cond.notify_all()
+
+    def take(self):
+        """The oldest item (waiting for one), marked as being mapped until done()."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._items)
+            self._busy = True
+            return self._items.popleft()
+
+    def done(self) -> None:
+        """The item taken last is mapped."""
+        with self._cond:
+            self._busy = False
+            self._cond.notify_all()
+
+
 class Tracker:
     """Monocular SDVL tracker for one camera."""
 
     def __init__(self, camera: CameraModel, config: TrackerConfig | None = None,
-                 threaded: bool = False):
+                 threaded: bool = False, stepped_mapping: bool = False):
+        """`threaded`: mapping in its own thread; `stepped_mapping` (a test hook, without
+        `threaded`): mapping as in threaded mode, but only when the caller runs it
+        (map_waiting), so a slow mapping thread can be emulated deterministically."""
         self.camera = camera
         self.config = config or TrackerConfig()
         self.threaded = threaded
-        self.dropped_mapping_frames = 0
+        self.stepped_mapping = stepped_mapping and not threaded
         self._mapping_error: Exception | None = None
         self._frame_id = 0
-        self._queue: queue.Queue | None = None
+        self.backlog: MappingBacklog | None = None
         self._thread: threading.Thread | None = None
         self._idle = threading.Event()  # clear while a frame is being tracked
         self._idle.set()
@@ -65,8 +123,10 @@ class Tracker:
         self.map.points.newest_frame = self._frame_id - 1
         self.mapper = Mapper(self.camera, cfg, self.map)
         self.mapper.after_ba = self._follow_ba
+        if self.threaded or self.stepped_mapping:
+            self.backlog = MappingBacklog(cfg.mapping_queue_size)
+            self.mapper.ba_allowed = lambda: self.backlog.waiting() == 0
         if self.threaded:
-            self.mapper.ba_allowed = lambda: self._queue.empty()
             self.mapper.ba_pause = lambda: self._idle.wait(BA_PAUSE_MAX_S)
         self.initializer = Initializer(self.camera, cfg)
         self.posed_ref: Frame | None = None  # the initialiser reference poses were given from
@@ -78,11 +138,7 @@ class Tracker:
         self.view_since: int | None = None  # lost, and the view usable since this frame id
         self.frames_since_kf = 0
         self.kf_visible: int | None = None  # points seen at the last keyframe
-        # frames tracked since the mapper last added a keyframe (and its new candidates)
-        self.frames_since_mapped_kf = 0
-        self.mapped_keyframes = 0
         if self.threaded:
-            self._queue = queue.Queue(maxsize=cfg.mapping_queue_size)
             self._thread = threading.Thread(target=self._mapping_loop, name="sdvl-mapping",
                                             daemon=True)
             self._thread.start()
@@ -92,22 +148,46 @@ class Tracker:
         self._stop_thread()
 
     def _stop_thread(self) -> None:
-        if self._thread is not None and self._queue is not None:
-            self._queue.put(None)
+        if self._thread is not None:
+            self.backlog.put(None)
             self._thread.join()
         self._thread = None
 
     def _mapping_loop(self) -> None:
+        backlog = self.backlog
         while True:
-            item = self._queue.get()
+            item = backlog.take()
             if item is None:
                 return
-            if self._mapping_error is not None:
-                continue  # keep draining so the tracking thread never blocks on the queue
             try:
-                self.mapper.step(*item)
+                if self._mapping_error is None:  # else drain: tracking must not wait
+                    self.mapper.step(*item)
             except Exception as exc:  # re-raised in the tracking thread by process()
                 self._mapping_error = exc
+            finally:
+                backlog.done()
+
+    def wait_for_mapping(self, timeout: float | None = None) -> bool:
+        """Wait (threaded mapping) until the mapping backlog has room for another frame;
+        False on timeout. A service calls this before taking the newest frame, so a slow
+        mapper makes it skip whole frames instead of tracking against a stale map; process()
+        waits too."""
+        if self.threaded:
+            return self.backlog.wait_for_room(timeout)
+        return self.backlog is None or self.backlog.has_room()
+
+    def map_waiting(self, n: int = 1) -> int:
+        """Stepped mapping: run the mapping steps of up to n waiting frames, oldest first;
+        how many ran."""
+        done = 0
+        while done < n and self.backlog.waiting():
+            frame, keyframe = self.backlog.take()
+            try:
+                self.mapper.step(frame, keyframe)
+            finally:
+                self.backlog.done()
+            done += 1
+        return done
 
     def _follow_ba(self, moved: dict[int, tuple[np.ndarray, np.ndarray]]) -> None:
         """A BA moved keyframes (the mapping thread calls this with the map lock held, so
@@ -119,16 +199,10 @@ class Tracker:
             last.T_c_w = bundle_adjustment.follow(last.T_c_w, last.feat_point, self.map, moved)
 
     def _map_step(self, frame: Frame, keyframe: bool) -> None:
-        if not self.threaded:
+        if self.backlog is None:
             self.mapper.step(frame, keyframe)
-            return
-        if keyframe:
-            self._queue.put((frame, True))
-            return
-        try:
-            self._queue.put_nowait((frame, False))
-        except queue.Full:
-            self.dropped_mapping_frames += 1
+        else:
+            self.backlog.put((frame, keyframe))  # never dropped: process() waits for room
 
     # ------------------------------------------------------------------ per frame
     def process(self, image: np.ndarray, t: float) -> FrameResult:
@@ -142,6 +216,10 @@ class Tracker:
                              f"{self.camera.width}x{self.camera.height}")
         if self._mapping_error is not None:
             raise RuntimeError("the mapping thread failed") from self._mapping_error
+        if self.stepped_mapping:
+            self.map_waiting(len(self.backlog) - self.backlog.size + 1)
+        elif self.threaded:
+            self.backlog.wait_for_room()
         self._idle.clear()  # a BA in the mapping thread waits until the frame is tracked
         try:
             return self._process(image, float(t))
@@ -151,6 +229,7 @@ class Tracker:
     def _process(self, image: np.ndarray, t: float) -> FrameResult:
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
+        unmapped = 0 if self.backlog is None else len(self.backlog)
         frame = Frame(self._frame_id, float(t), image, self.camera, self.config.pyramid_levels)
         self._frame_id += 1
         self.map.points.newest_frame = frame.id
@@ -166,7 +245,9 @@ class Tracker:
             with self.map.lock:
                 result, keyframe = self._track(frame, timings)
         timings["track"] = _ms(t0)
-        self._idle.set()  # tracked: a BA may go on (a full mapping queue must not stall it)
+        if result.quality == "good" and unmapped > self.config.mapping_lag_good:
+            result.quality = "insufficient"  # the map lags: its pose may be off
+        self._idle.set()  # tracked: a BA may go on
         if result.quality == "lost":
             self._on_lost()  # outside the map lock: a reset joins the mapping thread
         # mapping follows frames tracked against the map (a new map's frames are in it
@@ -399,18 +480,16 @@ class Tracker:
         its new candidates, which tracking uses once the mapper has added them and updated
         them candidate_min_updates times: until then the reference is the most points seen
         (else a keyframe taken with few points keeps the reference low and the next one comes
-        too late: kitti00 turned for 20 frames without one and lost the map). That window
-        applies to the count of projected points only: with inlier counts (the default) it
-        took keyframes too often on vamr (ATE 0.0017 -> 0.030 m)."""
+        too late: kitti00 turned for 20 frames without one and lost the map). The window
+        counts the frames mapped since the keyframe, not those tracked: a mapping thread that
+        lags updates the candidates later. It applies to the count of projected points only:
+        with inlier counts (the default) it took keyframes too often on vamr (ATE 0.0017 ->
+        0.030 m)."""
         self.frames_since_kf += 1
-        if self.mapper.n_keyframes_added != self.mapped_keyframes:  # threaded: maybe later
-            self.mapped_keyframes = self.mapper.n_keyframes_added
-            self.frames_since_mapped_kf = 0
-        self.frames_since_mapped_kf += 1
         if self.kf_visible is None:
             self.kf_visible = n_seen
         elif (not self.config.kf_count_inliers
-              and self.frames_since_mapped_kf <= self.config.candidate_min_updates + 1):
+              and self.mapper.frames_since_keyframe <= self.config.candidate_min_updates):
             self.kf_visible = max(self.kf_visible, n_seen)
         if not (good and self._need_keyframe(n_seen)):
             return False
