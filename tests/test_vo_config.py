@@ -18,12 +18,6 @@ def test_defaults_are_the_thesis_values():
     assert c.covisible_min_shared == 10
 
 
-def test_grid_cell_keeps_the_640_px_grid_on_smaller_images():
-    c = TrackerConfig()
-    assert [c.cell_px(w) for w in (1241, 752, 640, 320, 160, 64)] == [32, 32, 32, 16, 8, 8]
-    assert TrackerConfig(grid_cell=24).cell_px(320) == 12
-
-
 def test_from_toml_top_level_and_table(tmp_path):
     flat = tmp_path / "a.toml"
     flat.write_text("max_matches = 150\nepipolar_margin_px = 3\n")

@@ -9,9 +9,6 @@ from typing import Any
 from calib.errors import InputError
 from calib.tables import dataclass_from_table, read_toml
 
-# image width at which grid_cell applies as it is
-GRID_REFERENCE_WIDTH = 640
-
 
 @dataclass
 class TrackerConfig:
@@ -20,17 +17,18 @@ class TrackerConfig:
     # frames (6.2, 6.4)
     pyramid_levels: int = 5
     fast_threshold: int = 10
-    # grid cell side (one match per cell, one new point per empty cell of a keyframe) at 640 px
-    # image width and wider; narrower images use proportionally smaller cells (cell_px), the
-    # same 20-column grid. With 32 px cells at 320x240 (a 10x7 grid) the walkers hold got few
-    # new ground points where the group had stood; 16 px measured, ATE mm patch+rej world
-    # seeds 0-2, tracker seeds 0/1/2/3: walkers 13.6/16.2/38.7, 16.6/46.0/30.5, 17.2/26.3/32.6,
-    # 13.8/40.1/24.8 (32 px: 22.5/28.0/45.2, 30.8/27.0/38.3, 27.5/21.9/38.6, 27.8/55.6/44.7),
-    # walkers-empty 7.0/6.3/9.8, 6.5/6.3/9.4, 7.8/5.2/9.4, 6.5/6.5/9.9 (11.1/16.3/13.8,
-    # 11.3/11.2/11.6, 12.0/10.8/14.4, 11.6/15.8/13.4); hold tilt rms 0.28 deg (0.41), empty
-    # 0.07 (0.13). Most of it is the mapping grid: 16 px there only, walkers tracker seeds 0/1
-    # 25.8/19.3/27.2, 32.3/18.1/27.5, empty 8.9/8.6/13.1, 8.8/8.8/12.5; in tracking only
-    # 52.1/27.3/40.3, 54.3/24.6/43.6, empty 13.1/12.5/15.2, 13.0/12.4/15.4
+    # one match per cell in tracking, one new point per empty cell of a keyframe. Tried: 16 px
+    # at 320x240 (the 20x15 grid of 640x480). ATE mm patch+rej world seeds 0-2, tracker seeds
+    # 0/1/2/3: walkers 13.6/16.2/38.7, 16.6/46.0/30.5, 17.2/26.3/32.6, 13.8/40.1/24.8 (32 px:
+    # 22.5/28.0/45.2, 30.8/27.0/38.3, 27.5/21.9/38.6, 27.8/55.6/44.7), walkers-empty 7.0/6.3/
+    # 9.8, 6.5/6.3/9.4, 7.8/5.2/9.4, 6.5/6.5/9.9 (11.1/16.3/13.8, 11.3/11.2/11.6, 12.0/10.8/
+    # 14.4, 11.6/15.8/13.4); hold tilt rms 0.28 deg (0.41), empty 0.07 (0.13); mostly from the
+    # mapping grid (16 px there only: walkers tracker seeds 0/1 25.8/19.3/27.2, 32.3/18.1/27.5;
+    # in tracking only 52.1/27.3/40.3, 54.3/24.6/43.6); 24 px no better (34.3/24.4/42.6,
+    # 29.3/26.5/47.2). Not taken: on the sliding board of test_vo_outlier_rejection (320x240,
+    # tracker seeds 0-2) calm went 3.9/3.7/3.9 -> 1.6/1.6/1.5 mm but busy with rejection
+    # 4.4/4.0/4.3 -> 4.2/5.2/4.1, worse than without it (3.2/3.5/3.5): rejected points leaving
+    # the map cost it (point_max_rejected 1000: 2.4/2.5/2.6); tracking 1.5x slower at 320x240
     grid_cell: int = 32
 
     # sparse image alignment (6.7.1)
@@ -222,10 +220,6 @@ class TrackerConfig:
             raise InputError("orb_max_distance must be between 0 and 256")
         if self.grid_cell < 8 or self.max_matches < 6 or self.max_keyframes < 3:
             raise InputError("grid_cell >= 8, max_matches >= 6 and max_keyframes >= 3 required")
-
-    def cell_px(self, width: int) -> int:
-        """Grid cell side (level-0 pixels) for images `width` pixels wide."""
-        return max(8, round(self.grid_cell * min(1.0, width / GRID_REFERENCE_WIDTH)))
 
     @property
     def track_corner_level(self) -> int:

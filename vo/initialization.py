@@ -139,8 +139,7 @@ class Initializer:
         """Start from `frame` if it has enough corners; False otherwise."""
         c = frame.corners(self.config.fast_threshold)
         x, y = c.level0()
-        keep = best_per_cell(x, y, c.score, self.config.cell_px(self.camera.width),
-                             self.camera.width)
+        keep = best_per_cell(x, y, c.score, self.config.grid_cell, self.camera.width)
         keep = keep[np.argsort(-c.score[keep])][: self.config.init_max_features]
         if len(keep) < self.config.init_min_features:
             self.ref = None

@@ -330,20 +330,19 @@ class Mapper:
         pyr = frame.pyr
         score = shi_tomasi(pyr.flat, pyr.offsets, pyr.widths, pyr.heights, c.level, c.x, c.y)
         x, y = c.level0()
-        size = cfg.cell_px(self.camera.width)
-        cols = (self.camera.width + size - 1) // size
-        rows = (self.camera.height + size - 1) // size
+        cols = (self.camera.width + cfg.grid_cell - 1) // cfg.grid_cell
+        rows = (self.camera.height + cfg.grid_cell - 1) // cfg.grid_cell
         occupied = np.zeros(cols * rows, dtype=bool)
         if len(occupied_uv):
-            oc = np.clip((occupied_uv // size).astype(np.int64), 0, [cols - 1, rows - 1])
+            oc = np.clip((occupied_uv // cfg.grid_cell).astype(np.int64), 0, [cols - 1, rows - 1])
             occupied[oc[:, 1] * cols + oc[:, 0]] = True
         margin = 2.0 ** c.level * 6
         ok = (score > 0) & (x >= margin) & (y >= margin) & (x < self.camera.width - margin) & (
             y < self.camera.height - margin)
-        cell = (y // size).astype(np.int64) * cols + (x // size).astype(np.int64)
+        cell = (y // cfg.grid_cell).astype(np.int64) * cols + (x // cfg.grid_cell).astype(np.int64)
         ok &= ~occupied[np.clip(cell, 0, len(occupied) - 1)]
         sel = np.flatnonzero(ok)
-        best = sel[best_per_cell(x[sel], y[sel], score[sel], size, self.camera.width)]
+        best = sel[best_per_cell(x[sel], y[sel], score[sel], cfg.grid_cell, self.camera.width)]
         return x[best], y[best], c.level[best]
 
     def _cap_keyframes(self, frame: Frame) -> None:

@@ -52,8 +52,7 @@ class Tracker:
         self._thread: threading.Thread | None = None
         self._idle = threading.Event()  # clear while a frame is being tracked
         self._idle.set()
-        self.reprojector = Reprojector(camera, self.config.cell_px(camera.width),
-                                       self.config.seed)
+        self.reprojector = Reprojector(camera, self.config.grid_cell, self.config.seed)
         self._reset()
 
     # ------------------------------------------------------------------ lifecycle
