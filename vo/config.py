@@ -28,7 +28,11 @@ class TrackerConfig:
     # 29.3/26.5/47.2). Not taken: on the sliding board of test_vo_outlier_rejection (320x240,
     # tracker seeds 0-2) calm went 3.9/3.7/3.9 -> 1.6/1.6/1.5 mm but busy with rejection
     # 4.4/4.0/4.3 -> 4.2/5.2/4.1, worse than without it (3.2/3.5/3.5): rejected points leaving
-    # the map cost it (point_max_rejected 1000: 2.4/2.5/2.6); tracking 1.5x slower at 320x240
+    # the map cost it (point_max_rejected 1000: 2.4/2.5/2.6); tracking 1.5x slower at 320x240.
+    # 16 px with point_max_rejected 10: board busy 3.0/3.0/2.8, calm 1.7/1.6/1.7 (10 with 32 px
+    # cells: busy 5.9/6.2/5.3); walkers 16.8/20.3/29.8, 16.5/16.2/25.1, 16.8/18.3/24.3,
+    # 20.7/16.4/18.6 (mean 20.0, 32 px 34.0), empty 8.7/7.8/12.0, 8.5/8.3/13.2, 8.6/7.7/11.2,
+    # 8.2/8.1/12.4 (9.6, 32 px 12.8); hold tilt rms 0.27 deg, empty 0.075
     grid_cell: int = 32
 
     # sparse image alignment (6.7.1)
@@ -69,7 +73,10 @@ class TrackerConfig:
     ransac_max_hypotheses: int = 100
     # with outlier rejection, a point matched but rejected this many tracked frames in a row
     # leaves the map (a person who stood while mapped and walked off; its many finds kept it
-    # first in its grid cell, where it kept closing the cell to the ground points)
+    # first in its grid cell, where it kept closing the cell to the ground points). 10 at
+    # 640x480 world seed 0, patch+rej tracker seeds 0/1, ATE mm: hover-down 11.8/10.1 (now
+    # 11.2/10.1), survey-down 52/35 (117/56); with 32 px cells at 320x240 it lost on the sliding
+    # board, with 16 px it won there and on walkers (grid_cell)
     point_max_rejected: int = 3
 
     # quality (6.10)
