@@ -17,6 +17,22 @@ class TrackerConfig:
     # frames (6.2, 6.4)
     pyramid_levels: int = 5
     fast_threshold: int = 10
+    # one match per cell in tracking, one new point per empty cell of a keyframe. Tried: 16 px
+    # at 320x240 (the 20x15 grid of 640x480). ATE mm patch+rej world seeds 0-2, tracker seeds
+    # 0/1/2/3: walkers 13.6/16.2/38.7, 16.6/46.0/30.5, 17.2/26.3/32.6, 13.8/40.1/24.8 (32 px:
+    # 22.5/28.0/45.2, 30.8/27.0/38.3, 27.5/21.9/38.6, 27.8/55.6/44.7), walkers-empty 7.0/6.3/
+    # 9.8, 6.5/6.3/9.4, 7.8/5.2/9.4, 6.5/6.5/9.9 (11.1/16.3/13.8, 11.3/11.2/11.6, 12.0/10.8/
+    # 14.4, 11.6/15.8/13.4); hold tilt rms 0.28 deg (0.41), empty 0.07 (0.13); mostly from the
+    # mapping grid (16 px there only: walkers tracker seeds 0/1 25.8/19.3/27.2, 32.3/18.1/27.5;
+    # in tracking only 52.1/27.3/40.3, 54.3/24.6/43.6); 24 px no better (34.3/24.4/42.6,
+    # 29.3/26.5/47.2). Not taken: on the sliding board of test_vo_outlier_rejection (320x240,
+    # tracker seeds 0-2) calm went 3.9/3.7/3.9 -> 1.6/1.6/1.5 mm but busy with rejection
+    # 4.4/4.0/4.3 -> 4.2/5.2/4.1, worse than without it (3.2/3.5/3.5): rejected points leaving
+    # the map cost it (point_max_rejected 1000: 2.4/2.5/2.6); tracking 1.5x slower at 320x240.
+    # 16 px with point_max_rejected 10: board busy 3.0/3.0/2.8, calm 1.7/1.6/1.7 (10 with 32 px
+    # cells: busy 5.9/6.2/5.3); walkers 16.8/20.3/29.8, 16.5/16.2/25.1, 16.8/18.3/24.3,
+    # 20.7/16.4/18.6 (mean 20.0, 32 px 34.0), empty 8.7/7.8/12.0, 8.5/8.3/13.2, 8.6/7.7/11.2,
+    # 8.2/8.1/12.4 (9.6, 32 px 12.8); hold tilt rms 0.27 deg, empty 0.075
     grid_cell: int = 32
 
     # sparse image alignment (6.7.1)
@@ -57,7 +73,10 @@ class TrackerConfig:
     ransac_max_hypotheses: int = 100
     # with outlier rejection, a point matched but rejected this many tracked frames in a row
     # leaves the map (a person who stood while mapped and walked off; its many finds kept it
-    # first in its grid cell, where it kept closing the cell to the ground points)
+    # first in its grid cell, where it kept closing the cell to the ground points). 10 at
+    # 640x480 world seed 0, patch+rej tracker seeds 0/1, ATE mm: hover-down 11.8/10.1 (now
+    # 11.2/10.1), survey-down 52/35 (117/56); with 32 px cells at 320x240 it lost on the sliding
+    # board, with 16 px it won there and on walkers (grid_cell)
     point_max_rejected: int = 3
 
     # quality (6.10)
