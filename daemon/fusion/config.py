@@ -63,9 +63,11 @@ class FusionConfig:
     # changes the map's scale (scale_walk_climb_per_sqrt_m), not where it puts the camera.
     # Calibrated on the synthetic flights (lockstep, all sensors, seeds 0-4): at 0.01 the
     # position NEES was 0.10-0.72 on hover-down (mean per axis N/E 0.43/0.47) and 0.21-1.13 on
-    # survey-down (0.52/0.72); at 0.005 0.13-1.04 (0.67/0.74) and 0.24-1.05 (0.55/0.77). Real
-    # imagery may drift more: raise it when a flight's NEES (or the autopilot's innovations)
-    # says so
+    # survey-down (0.52/0.72); at 0.005 0.13-1.04 (0.67/0.74) and 0.24-1.05 (0.55/0.77) (older
+    # tracker; the covariance then carried the compass bias and NEES was scored against true
+    # north). Robust tracker, heading frame, survey-down seeds 0-4: 0.16/0.30/0.27/0.32/0.41,
+    # the north std being the scale's std times the distance along the legs. Real imagery may
+    # drift more: raise it when a flight's NEES (or the autopilot's innovations) says so
     vo_drift_m_per_sqrt_m: float = 0.005
     vo_drift_m_per_sqrt_s: float = 0.0  # VO position random walk per sqrt(second), also at rest
     reanchor_distance_m: float = 5.0  # fuse the map relative to a pose at most this far back
