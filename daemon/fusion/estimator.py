@@ -39,6 +39,7 @@ INBOX_LIMIT = 20_000
 TRACKED = ("good", "insufficient", "bad")
 RANGE_FRESH_S = 0.5  # a rangefinder reading this close to a frame measures its height
 MIN_SCENE_POINTS = 20  # matched map points for a median height
+MAD_TO_STD = 1.4826  # median absolute deviation to standard deviation (normal)
 
 
 @dataclass(frozen=True)
@@ -321,9 +322,11 @@ class FusionEstimator:
         if (f.scene_ne is not None
                 and np.linalg.norm(f.x[:2] - f.scene_ne) < cfg.terrain_correlation_m):
             return
-        height = float(np.median((points - frame.p_w) @ f.R_nom[2]))  # R_nom[2]: N's down
+        heights = (points - frame.p_w) @ f.R_nom[2]  # R_nom[2]: N's down
+        height = float(np.median(heights))
+        spread = MAD_TO_STD * float(np.median(np.abs(heights - height)))
         if height > 0 and np.isfinite(height) and m.update_scene(
-                f, np.log(height), float((R_n_b @ f.lever)[2])):
+                f, np.log(height), float((R_n_b @ f.lever)[2]), spread / height):
             f.scene_ne = f.x[:2].copy()
 
     def _scale_prior(self, t: float) -> tuple[float, float | None]:

@@ -166,15 +166,18 @@ def update_range(f: NavFilter, distance: float, R_n_b: np.ndarray) -> bool:
     return _scalar_update(f, "range", distance * cos_tilt, GROUND, std)
 
 
-def update_scene(f: NavFilter, log_height_units: float, lever_down: float) -> bool:
+def update_scene(f: NavFilter, log_height_units: float, lever_down: float,
+                 spread_fraction: float = 0.0) -> bool:
     """ln of the camera's height above the ground in map units (scene.py) = ln of its height
     above the rangefinder's ground level in metres - ln(scale); the ground the map sees differs
-    from the rangefinder's by the terrain relief."""
+    from the rangefinder's by the terrain relief: the spread of the matched points' heights
+    (`spread_fraction` of the height), at least terrain_relief_m."""
     cfg = f.cfg
     height = float(f.x[GROUND] - f.x[2] - lever_down)
     if not height > cfg.range_std_m:
         return False
-    std = float(np.hypot(cfg.terrain_relief_m, cfg.scene_height_std_fraction * height)) / height
+    relief = max(cfg.terrain_relief_m, spread_fraction * height)
+    std = float(np.hypot(relief, cfg.scene_height_std_fraction * height)) / height
     H = np.zeros((1, DIM))
     H[0, LOG_SCALE] = -1.0
     H[0, GROUND] = 1.0 / height
