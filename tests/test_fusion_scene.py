@@ -6,7 +6,10 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from daemon.fusion.config import FusionConfig
+from daemon.fusion.measurements import update_scene
 from daemon.fusion.scene import SceneResult, SceneTracker, matched_points
+from daemon.fusion.state import LOG_SCALE, NavFilter
 from vo.result import FrameResult
 
 POINTS = np.arange(30.0).reshape(10, 3)
@@ -47,3 +50,23 @@ def test_no_points_without_a_pose_or_for_another_frame() -> None:
     assert matched_points(tracker, FrameResult(2.0, np.eye(4), "good")) is None
     tracker.last.feat_point = np.array([], dtype=np.int64)
     assert matched_points(tracker, FrameResult(1.0, np.eye(4), "good")) is None
+
+
+def _scale_std_after_scene_height(spread_fraction: float) -> float:
+    """The scale's std after one scene-height update at 12 m (the map says 12 units: scale 1)."""
+    f = NavFilter(FusionConfig())
+    f.start(0.0, 3.0)
+    f.start_segment(np.zeros(3), np.eye(3), np.eye(3), 0.0, scale_std=0.05)
+    f.reference("range", 12.0, 0.01)
+    assert update_scene(f, float(np.log(12.0)), 0.0, spread_fraction)
+    return float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
+
+
+def test_scene_height_counts_the_spread_of_the_ground_it_sees() -> None:
+    """Over open ground (spread under terrain_relief_m) the map's height fixes the scale to
+    about hypot(0.05 m, 0.5 %) / 12 m; over buildings (spread 7 % of the height) it is a
+    weak hint."""
+    flat = _scale_std_after_scene_height(0.001)
+    assert flat == _scale_std_after_scene_height(0.0)
+    assert 0.004 < flat < 0.008
+    assert _scale_std_after_scene_height(0.07) > 0.04
