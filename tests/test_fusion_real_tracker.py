@@ -91,8 +91,7 @@ def test_accuracy_and_never_overconfident(fused) -> None:
 
 
 def test_consistent_not_overcautious(fused) -> None:
-    """1.72 with the flight's recorded sensors and datasheet (0.71 before the drift and rotation
-    noise were calibrated on survey-down and hover-down; 0.13 when the sensors were exact
+    """0.71 with the flight's recorded sensors and datasheet (0.13 when the sensors were exact
     and the filter was told the hardware defaults)."""
     _ate, nees, _finite = _errors_and_nees(fused)
     assert nees >= 0.5

@@ -54,7 +54,7 @@ def test_no_points_without_a_pose_or_for_another_frame() -> None:
 
 def _scale_std_after_scene_height(spread_fraction: float) -> float:
     """The scale's std after one scene-height update at 12 m (the map says 12 units: scale 1)."""
-    f = NavFilter(FusionConfig())
+    f = NavFilter(FusionConfig(terrain_relief_m=0.05, scene_height_std_fraction=0.005))
     f.start(0.0, 3.0)
     f.start_segment(np.zeros(3), np.eye(3), np.eye(3), 0.0, scale_std=0.05)
     f.reference("range", 12.0, 0.01)
@@ -63,9 +63,9 @@ def _scale_std_after_scene_height(spread_fraction: float) -> float:
 
 
 def test_scene_height_counts_the_spread_of_the_ground_it_sees() -> None:
-    """Over open ground (spread under terrain_relief_m) the map's height fixes the scale to
-    about hypot(0.05 m, 0.5 %) / 12 m; over buildings (spread 7 % of the height) it is a
-    weak hint."""
+    """With a 0.05 m relief floor and 0.5 % median noise: over open ground (spread under the
+    floor) the map's height fixes the scale to about hypot(0.05 m, 0.5 %) / 12 m; over
+    buildings (spread 7 % of the height) it is a weak hint."""
     flat = _scale_std_after_scene_height(0.001)
     assert flat == _scale_std_after_scene_height(0.0)
     assert 0.004 < flat < 0.008
