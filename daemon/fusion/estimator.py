@@ -33,13 +33,13 @@ from daemon.fusion.sensors import BARO_PRIORITY, IMU_PRIORITY, Attitude, Baro, I
 from daemon.fusion.state import ANCHOR, LOG_SCALE, POS, NavFilter
 from daemon.fusion.timeline import Event, Timeline
 from daemon.mounting import body_from_camera
+from vo.pose_optimizer import MAD_TO_SIGMA
 
 log = logging.getLogger("sdvl.fusion")
 INBOX_LIMIT = 20_000
 TRACKED = ("good", "insufficient", "bad")
 RANGE_FRESH_S = 0.5  # a rangefinder reading this close to a frame measures its height
 MIN_SCENE_POINTS = 20  # matched map points for a median height
-MAD_TO_STD = 1.4826  # median absolute deviation to standard deviation (normal)
 
 
 @dataclass(frozen=True)
@@ -324,7 +324,7 @@ class FusionEstimator:
             return
         heights = (points - frame.p_w) @ f.R_nom[2]  # R_nom[2]: N's down
         height = float(np.median(heights))
-        spread = MAD_TO_STD * float(np.median(np.abs(heights - height)))
+        spread = MAD_TO_SIGMA * float(np.median(np.abs(heights - height)))
         if height > 0 and np.isfinite(height) and m.update_scene(
                 f, np.log(height), float((R_n_b @ f.lever)[2]), spread / height):
             f.scene_ne = f.x[:2].copy()
