@@ -257,7 +257,7 @@ class FusionEstimator:
         if m.update_vo(f, frame.p_w, frame.cov, R_n_b, factor, self._imu_fresh(t), attitude,
                        coarse):
             if np.linalg.norm(f.x[POS] - f.x[ANCHOR]) > self.cfg.reanchor_distance_m:
-                f.reanchor(frame.p_w, self._vo_noise_n(f, frame))
+                f.reanchor(frame.p_w)
             self._scene_height(t, frame, R_n_b)
         elif f.rejections["vo"] >= self.cfg.reset_after_rejections and att is not None:
             if f.published:
@@ -340,11 +340,6 @@ class FusionEstimator:
         f = self.filter
         return (float(f.x[LOG_SCALE]) if f.segment >= 0 else float(np.log(cfg.initial_scale)),
                 None)
-
-    def _vo_noise_n(self, f: NavFilter, frame: FrameInput) -> np.ndarray:
-        """The tracker's position noise in metres and N."""
-        cov = f.scale**2 * (f.R_nom @ frame.cov[:3, :3] @ f.R_nom.T)
-        return cov + np.eye(3) * self.cfg.vo_position_std_m**2
 
     def _attitude_noise(self, quality: str) -> np.ndarray:
         """Covariance of the autopilot's attitude (compass heading noisier than the tilt) plus
