@@ -1,0 +1,39 @@
+"""The map's anchor (state.py): what moving it and climbing do to its uncertainty."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from daemon.fusion.config import FusionConfig
+from daemon.fusion.state import ANCHOR, LOG_SCALE, THETA, VEL, NavFilter
+
+
+def _filter(**settings: float) -> NavFilter:
+    f = NavFilter(FusionConfig(**settings))
+    f.start(0.0, 3.0)
+    f.start_segment(np.zeros(3), np.eye(3), np.eye(3), 0.0, scale_std=0.05)
+    return f
+
+
+def test_moving_the_anchor_along_the_map_adds_no_noise() -> None:
+    """With scale and rotation known, the map's chain of anchors is as good as its first: the
+    tracker's noise at one anchor cancels at the next."""
+    f = _filter()
+    for index in (LOG_SCALE, THETA):
+        f.P[index, :] = 0.0
+        f.P[:, index] = 0.0
+    before = f.P[ANCHOR, ANCHOR].copy()
+    for step in range(1, 21):
+        f.reanchor(np.array([0.5 * step, 0.0, 0.0]))
+    np.testing.assert_allclose(f.P[ANCHOR, ANCHOR], before, atol=1e-12)
+    np.testing.assert_allclose(f.x[ANCHOR], [10.0, 0.0, 0.0])
+
+
+def test_a_climb_lets_the_map_wander_sideways_only() -> None:
+    f = _filter(vo_drift_m_per_sqrt_m=0.0, vo_drift_climb_m_per_sqrt_m=0.03,
+                vo_drift_m_per_sqrt_s=0.0)
+    f.x[VEL] = [0.0, 0.0, -1.0]  # climbing 1 m/s
+    before = np.diag(f.P[ANCHOR, ANCHOR]).copy()
+    f.predict(4.0, None, None)  # 4 m climbed
+    grown = np.diag(f.P[ANCHOR, ANCHOR]) - before
+    np.testing.assert_allclose(grown, [0.03**2 * 4, 0.03**2 * 4, 0.0], rtol=1e-9, atol=1e-15)
