@@ -167,7 +167,7 @@ def update_range(f: NavFilter, distance: float, R_n_b: np.ndarray) -> bool:
 
 
 def update_scene(f: NavFilter, log_height_units: float, lever_down: float,
-                 spread_fraction: float = 0.0) -> bool:
+                 spread_fraction: float) -> bool:
     """ln of the camera's height above the ground in map units (scene.py) = ln of its height
     above the rangefinder's ground level in metres - ln(scale); the ground the map sees differs
     from the rangefinder's by the terrain relief: the spread of the matched points' heights

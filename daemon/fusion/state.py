@@ -318,11 +318,11 @@ class NavFilter:
             Q[BIAS, BIAS] = np.eye(3) * cfg.accel_bias_walk**2 * dt
         Q[ANCHOR, ANCHOR] = np.eye(3) * (cfg.vo_drift_m_per_sqrt_m**2 * horizontal_speed
                                          + cfg.vo_drift_m_per_sqrt_s**2) * dt
+        climb_speed = abs(self.x[5])
         sideways = slice(ANCHOR.start, ANCHOR.start + 2)  # a climb's height gives the scale
-        climbed = abs(self.x[5]) * dt
-        Q[sideways, sideways] += np.eye(2) * cfg.vo_drift_climb_m_per_sqrt_m**2 * climbed
+        Q[sideways, sideways] += np.eye(2) * cfg.vo_drift_climb_m_per_sqrt_m**2 * climb_speed * dt
         Q[LOG_SCALE, LOG_SCALE] = (cfg.scale_walk_per_sqrt_m**2 * horizontal_speed
-                                   + cfg.scale_walk_climb_per_sqrt_m**2 * abs(self.x[5])) * dt
+                                   + cfg.scale_walk_climb_per_sqrt_m**2 * climb_speed) * dt
         Q[THETA, THETA] = np.eye(3) * np.radians(cfg.alignment_walk_deg_per_sqrt_m) ** 2 * (
             speed * dt)
         Q[GROUND, GROUND] = cfg.ground_walk_m_per_sqrt_m**2 * horizontal_speed * dt
