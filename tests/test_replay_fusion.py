@@ -154,13 +154,14 @@ def test_nees_heading_and_take_off_scores() -> None:
                            np.tile(0.09 * np.eye(3), (len(t), 1, 1)),
                            np.tile(np.eye(3), (len(t), 1, 1)), 0.0)
     assert scores["heading_rms_deg"] == pytest.approx(5.0)
+    assert scores["heading_frame_rms_deg"] == pytest.approx(5.0)  # no compass bias given
     assert scores["nees_position"] == pytest.approx(1 / 3)
     assert scores["ate_pct_distance"] == pytest.approx(100 * 0.3 / scores["distance_m"])
 
 
 def test_nees_is_scored_in_the_autopilots_heading_frame() -> None:
     """A flight flown exactly in a frame turned by the compass bias: true-north errors (ATE,
-    heading), none in the frame the poses and their covariance are in."""
+    heading), none in the frame the poses and their covariance are in (NEES, heading)."""
     t = np.linspace(0.0, 10.0, 101)
     truth = Trajectory(t, np.column_stack([3.0 * t, t, -5.0 + 0 * t]),
                        np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1)))
@@ -173,6 +174,7 @@ def test_nees_is_scored_in_the_autopilots_heading_frame() -> None:
     covariance = np.tile(1e-4 * np.eye(3), (len(t), 1, 1))
     scores = fusion_scores(aligned, truth, velocity_error, covariance, covariance, 0.0, -2.0)
     assert scores["heading_rms_deg"] == pytest.approx(2.0)
+    assert scores["heading_frame_max_deg"] == pytest.approx(0.0, abs=1e-9)
     assert scores["ate_pct_distance"] > 1.0
     assert scores["nees_position"] == pytest.approx(0.0, abs=1e-6)
     assert scores["nees_velocity"] == pytest.approx(0.0, abs=1e-3)

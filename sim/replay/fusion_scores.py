@@ -25,6 +25,11 @@ FUSION_KEYS = {
     "ate_pct_distance": "ate_rmse_m as a percentage of distance_m",
     "heading_rms_deg": "heading (yaw) error RMS of the received attitude, degrees",
     "heading_max_deg": "largest absolute heading error, degrees",
+    "heading_frame_rms_deg": "heading error RMS in the autopilot's heading frame (the heading "
+                             "error less compass_bias_deg): what the fusion adds to the "
+                             "autopilot's own compass error, degrees",
+    "heading_frame_max_deg": "largest absolute heading error in the autopilot's heading frame, "
+                             "degrees",
     "compass_bias_deg": "heading error of the attitude the autopilot reported, its mean over "
                         "the flight (its compass bias), degrees (None: no synthetic sensors)",
     "nees_position": "position NEES per degree of freedom, mean over the scored poses, "
@@ -111,7 +116,8 @@ def fusion_scores(aligned: Aligned, flight: Trajectory, velocity_error: np.ndarr
                   position_cov: np.ndarray, velocity_cov: np.ndarray,
                   tracking_start_s: float | None, compass_bias: float | None = None) -> dict:
     """The FUSION_KEYS for matched poses: `velocity_error` and the covariances (N, 3, 3) in
-    the local frame are rows of the aligned estimate; `compass_bias` in degrees."""
+    the local frame are rows of the aligned estimate; `compass_bias` in degrees (None: the
+    autopilot's heading frame is taken as true north)."""
     t = aligned.estimate.t
     truth = aligned.groundtruth.positions
     error = aligned.estimate.positions - truth
@@ -126,12 +132,15 @@ def fusion_scores(aligned: Aligned, flight: Trajectory, velocity_error: np.ndarr
     distance = float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1)))
     ate = float(np.sqrt(np.mean(np.sum(error**2, axis=1))))
     heading = heading_errors_deg(aligned)
+    frame_heading = (heading - (compass_bias or 0.0) + 180.0) % 360.0 - 180.0
     takeoff, climb = takeoff_time(flight, float(flight.t[0]))
     return {
         "distance_m": distance,
         "ate_pct_distance": 100.0 * ate / distance if distance > 0 else None,
         "heading_rms_deg": float(np.sqrt(np.mean(heading**2))),
         "heading_max_deg": float(np.max(np.abs(heading))),
+        "heading_frame_rms_deg": float(np.sqrt(np.mean(frame_heading**2))),
+        "heading_frame_max_deg": float(np.max(np.abs(frame_heading))),
         "compass_bias_deg": compass_bias,
         "nees_position": nees_per_dof(frame_error, position_cov),
         "nees_velocity": nees_per_dof(frame_velocity_error, velocity_cov),

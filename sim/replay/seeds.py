@@ -55,7 +55,7 @@ def summarize(reports: list[dict]) -> dict:
     for key in ("ate_rmse_m", "ate_pct_distance", "velocity_rmse_m_s"):
         out[f"{key}_mean"] = _mean(_values(reports, key))
         out[f"{key}_max"] = _extreme(_values(reports, key), max)
-    for key in ("heading_max_deg", "publish_after_takeoff_s"):
+    for key in ("heading_max_deg", "heading_frame_max_deg", "publish_after_takeoff_s"):
         out[f"{key}_max"] = _extreme(_values(reports, key), max)
     out["tracked_fraction_min"] = _extreme(_values(reports, "tracked_fraction"), min)
     for key in ("nees_position", "nees_velocity"):
@@ -73,12 +73,13 @@ def _cell(value: float | None, fmt: str, width: int) -> str:
 def format_seeds(seeds: list[int], reports: list[dict], summary: dict) -> str:
     """A table line per seed and the summary lines."""
     lines = ["seed  tracked   ATE m  ATE %  heading max  NEES pos  NEES vel  published  compass",
-             "                                      deg                     s after    bias deg",
-             "                                                               take-off"]
+             "                                   deg (autopilot's                s after  bias deg",
+             "                                    heading frame)                take-off"]
     for seed, r in zip(seeds, reports, strict=True):
         lines.append(f"{seed:>4} {_cell(r['tracked_fraction'], '.1%', 8)}"
                      f"{_cell(r['ate_rmse_m'], '.4f', 8)}{_cell(r['ate_pct_distance'], '.2f', 7)}"
-                     f"{_cell(r['heading_max_deg'], '.2f', 13)}"
+                     f"{_cell(r['heading_max_deg'], '.2f', 6)} "
+                     f"({_cell(r['heading_frame_max_deg'], '.2f', 4)})"
                      f"{_cell(r['nees_position'], '.2f', 10)}{_cell(r['nees_velocity'], '.2f', 10)}"
                      f"{_cell(r['publish_after_takeoff_s'], '.2f', 11)}"
                      f"{_cell(r['compass_bias_deg'], '+.2f', 9)}")
@@ -86,7 +87,8 @@ def format_seeds(seeds: list[int], reports: list[dict], summary: dict) -> str:
     lines += [
         f"over {s['runs']} seeds: ATE mean {_cell(s['ate_rmse_m_mean'], '.4f', 0)} m, max "
         f"{_cell(s['ate_rmse_m_max'], '.4f', 0)} m ({_cell(s['ate_pct_distance_max'], '.2f', 0)}"
-        f"% of the distance flown); heading max {_cell(s['heading_max_deg_max'], '.2f', 0)} deg",
+        f"% of the distance flown); heading max {_cell(s['heading_max_deg_max'], '.2f', 0)} deg "
+        f"({_cell(s['heading_frame_max_deg_max'], '.2f', 0)} in the autopilot's heading frame)",
         f"  ANEES per dof: position {_cell(s['anees_position'], '.2f', 0)} (runs "
         f"{_cell(s['nees_position_min'], '.2f', 0)}-{_cell(s['nees_position_max'], '.2f', 0)}), "
         f"velocity {_cell(s['anees_velocity'], '.2f', 0)} (runs "
