@@ -64,23 +64,38 @@ class GroundTruthTracker:
         """Nothing to release."""
 
 
-def test_fusion_replay_scores_ned_positions_after_the_start_alignment(tmp_path, capsys):
+def _take_off_replay(realtime: bool, out_dir):
+    """A take-off and drift replayed through the fusion with the ground truth as tracker: the
+    report, the aligned trajectories and the reference."""
     gt = take_off_and_drift(10.0)
     image = np.zeros((24, 32), np.uint8)
     sequence = Sequence("take-off", CameraModel(32, 24, 20.0, 20.0, 16.0, 12.0, "none", []),
                         gt.t, image_loader=lambda i: image, groundtruth=gt,
                         extras={"T_ned_world": np.eye(4)})
     config = replace(Config(), fusion={"enabled": True})
-    run = run_replay(sequence, config, realtime=True, progress=False,
+    run = run_replay(sequence, config, realtime=realtime, progress=False,
                      make_tracker=lambda frame: GroundTruthTracker(gt))
-    r, aligned, reference = build_report(run, tmp_path)
+    r, aligned, reference = build_report(run, out_dir)
     assert r["estimator"] == "fusion" and r["align"] == "start" and r["scale"] == 1.0
     assert r["resets"] == 0
-    # realtime: how many frames a loaded machine drops is timing, not what this test is about
-    # (17 of 300 once beside the other pytest worker on 2 cores); most must get through
-    assert r["dropped"] <= 0.2 * len(gt)
     assert r["tracked"] == r["processed"]
     assert r["messages_received"] >= 150  # published once scale and heading converged
+    return r, aligned, reference, len(gt)
+
+
+def test_realtime_fusion_replay_publishes_ned_poses(tmp_path):
+    """The README's default: the autopilot in its own process, frames at the camera's rate."""
+    r, _, _, frames = _take_off_replay(True, tmp_path)
+    # how many frames a loaded machine drops, and so the error, is timing: 17 of 300 dropped
+    # and ATE 0.069 m beside the other pytest worker on 2 cores, 0.003-0.034 m beside two busy
+    # loops, 0.022-0.029 m alone (lockstep 0.013 m)
+    assert r["dropped"] <= 0.2 * frames
+    assert r["ate_rmse_m"] < 0.15 and r["rot_rmse_deg"] < 1.0
+
+
+def test_fusion_replay_scores_ned_positions_after_the_start_alignment(tmp_path, capsys):
+    r, aligned, reference, _ = _take_off_replay(False, tmp_path)
+    assert r["dropped"] == 0
     assert r["ate_rmse_m"] < 0.05 and r["rot_rmse_deg"] < 1.0
     assert r["velocity_rmse_m_s"] < 0.1
     assert aligned is not None

@@ -67,7 +67,9 @@ def test_replay_over_seeds_prints_each_run_and_the_anees(tmp_path, capsys):
     r = json.loads(capsys.readouterr().out)
     assert r["seeds"] == [0, 1] and len(r["runs"]) == 2
     assert all(run["compass_bias_deg"] is not None for run in r["runs"])
-    assert all(0 <= run["heading_frame_max_deg"] < 180 for run in r["runs"])
+    # the fusion follows the autopilot's heading (0.18/0.15 deg off it; 0.76/1.25 deg off true
+    # north, with compasses off by 0.74/1.10)
+    assert all(run["heading_frame_max_deg"] < 0.5 for run in r["runs"])
     nees = [run["nees_position"] for run in r["runs"]]
     assert None not in nees
     assert r["summary"]["anees_position"] == pytest.approx(np.mean(nees))

@@ -72,14 +72,16 @@ def _cell(value: float | None, fmt: str, width: int) -> str:
 
 def format_seeds(seeds: list[int], reports: list[dict], summary: dict) -> str:
     """A table line per seed and the summary lines."""
-    lines = ["seed  tracked   ATE m  ATE %  heading max  NEES pos  NEES vel  published  compass",
-             "                                   deg (autopilot's                s after  bias deg",
-             "                                    heading frame)                take-off"]
+    lines = ["seed  tracked   ATE m  ATE %  heading max deg  NEES pos  NEES vel  published"
+             "  compass",
+             "                               true  AP frame                        s after"
+             " bias deg",
+             " " * 68 + "take-off"]
     for seed, r in zip(seeds, reports, strict=True):
         lines.append(f"{seed:>4} {_cell(r['tracked_fraction'], '.1%', 8)}"
                      f"{_cell(r['ate_rmse_m'], '.4f', 8)}{_cell(r['ate_pct_distance'], '.2f', 7)}"
-                     f"{_cell(r['heading_max_deg'], '.2f', 6)} "
-                     f"({_cell(r['heading_frame_max_deg'], '.2f', 4)})"
+                     f"{_cell(r['heading_max_deg'], '.2f', 7)}"
+                     f"{_cell(r['heading_frame_max_deg'], '.2f', 10)}"
                      f"{_cell(r['nees_position'], '.2f', 10)}{_cell(r['nees_velocity'], '.2f', 10)}"
                      f"{_cell(r['publish_after_takeoff_s'], '.2f', 11)}"
                      f"{_cell(r['compass_bias_deg'], '+.2f', 9)}")
