@@ -312,7 +312,8 @@ def _fusion_lines(r: dict) -> list[str]:
         f"           in the autopilot's heading frame (compass bias "
         f"{_num(r['compass_bias_deg'], '+.2f')} deg): heading rms "
         f"{_num(r['heading_frame_rms_deg'], '.2f')} / max {_num(r['heading_frame_max_deg'], '.2f')}"
-        f" deg, NEES per dof: position {_num(r['nees_position'], '.2f')}, velocity "
+        " deg,",
+        f"           NEES per dof: position {_num(r['nees_position'], '.2f')}, velocity "
         f"{_num(r['nees_velocity'], '.2f')}",
         f"           tracking from {_num(r['tracking_start_s'], '.2f')} s, first published "
         f"{r['first_publish_s']:.2f} s; take-off {_num(r['takeoff_s'], '.2f')} s (climb "
