@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from calib.errors import InputError
+from sdvl.errors import InputError
 
 BOARD_KINDS = ("chessboard", "charuco")
 MIN_CHARUCO_CORNERS = 6

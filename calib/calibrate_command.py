@@ -19,7 +19,6 @@ from calib.board import BOARD_KINDS, BoardDetector, BoardSpec
 from calib.calibration import MODELS
 from calib.camera_yaml import save_camera
 from calib.coverage import corner_coverage, draw_coverage
-from calib.errors import InputError
 from calib.formats import FORMATS, format_help, read_camera_file, write_camera_file
 from calib.frame_sources import device_frames, image_files, video_frames
 from calib.report import CalibrationReport
@@ -31,6 +30,7 @@ from calib.view_selection import (
     MotionGate,
     calibrate_robustly,
 )
+from sdvl.errors import InputError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

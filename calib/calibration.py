@@ -14,7 +14,7 @@ import numpy as np
 
 from calib.board import Detection
 from calib.camera import CameraModel
-from calib.errors import InputError
+from sdvl.errors import InputError
 
 MODELS = {"pinhole-radtan": "radtan_opencv", "fisheye": "equidistant"}
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12)

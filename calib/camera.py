@@ -12,7 +12,7 @@ from functools import cached_property
 import numba
 import numpy as np
 
-from calib.errors import InputError
+from sdvl.errors import InputError
 
 KIND_NONE = 0
 KIND_RADTAN = 1

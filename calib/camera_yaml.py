@@ -11,7 +11,7 @@ from pathlib import Path
 import yaml
 
 from calib.camera import CameraModel, canonical_model_name
-from calib.errors import InputError, read_text
+from sdvl.errors import InputError, read_text
 
 REQUIRED_KEYS = ("width", "height", "fx", "fy", "cx", "cy")
 

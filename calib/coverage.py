@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calib.errors import InputError
+from sdvl.errors import InputError
 
 GRID_COLS, GRID_ROWS = 12, 9
 _AREA_NAMES = (("top-left", "top", "top-right"), ("left", "centre", "right"),

@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calib.errors import InputError
+from sdvl.errors import InputError
 
 
 def _grey(image: np.ndarray) -> np.ndarray:

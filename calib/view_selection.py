@@ -13,7 +13,7 @@ import numpy as np
 
 from calib.board import Detection
 from calib.calibration import CalibrationResult, View, calibrate
-from calib.errors import InputError
+from sdvl.errors import InputError
 
 DEFAULT_MIN_VIEWS = 8
 DEFAULT_OUTLIER_FACTOR = 3.0

@@ -14,12 +14,12 @@ import time
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from calib.errors import InputError
 from daemon.autopilot_params import check_parameters, from_wire, parameter_names
 from daemon.autopilot_watch import AutopilotWatch
 from daemon.config import OUTPUTS, load_config
 from daemon.link import open_link
 from daemon.mavlink_codec import MavlinkCodec
+from sdvl.errors import InputError
 
 PARAM_TRIES = 3
 PARAM_WAIT_S = 0.5

@@ -11,9 +11,9 @@ import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from calib.errors import InputError
-from calib.tables import dataclass_from_table, read_toml, suggest
 from daemon.fusion.config import FusionConfig
+from sdvl.errors import InputError
+from sdvl.tables import dataclass_from_table, read_toml, suggest
 
 EXAMPLE_CONFIG = Path(__file__).with_name("example_config.toml")
 MOUNTING_PRESETS = ("down", "forward", "custom")

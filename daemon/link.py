@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import serial
 
-from calib.errors import InputError
+from sdvl.errors import InputError
 
 log = logging.getLogger("sdvl.link")
 MAX_BACKLOG = 64 * 1024  # bytes queued for a slow serial port or TCP peer

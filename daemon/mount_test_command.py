@@ -6,11 +6,11 @@ import argparse
 import time
 from pathlib import Path
 
-from calib.errors import InputError
 from daemon.config import load_config
 from daemon.frames import Frame
 from daemon.mount_test import MountTest
 from daemon.run_command import camera_model, open_source, tracker_factory
+from sdvl.errors import InputError
 
 INSTRUCTIONS = ("Mount self-test: hold the vehicle level, then move it slowly by hand\n"
                 "  1. forward (towards its nose)  -> expect FORWARD\n"

@@ -15,8 +15,8 @@ import numpy as np
 
 from calib.camera import CameraModel
 from calib.camera_yaml import load_camera
-from calib.errors import InputError
-from calib.textfile import check_increasing, parse_floats, read_lines
+from sdvl.errors import InputError
+from sdvl.textfile import check_increasing, parse_floats, read_lines
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
 FRAME_LISTS = ("frames.txt", "rgb.txt")

@@ -12,12 +12,12 @@ from pathlib import Path
 
 from calib.camera import CameraModel
 from calib.camera_yaml import load_camera
-from calib.errors import InputError
 from daemon.camera import FrameSource, OpenCVSource, SequenceSource, TestPatternSource
 from daemon.config import CameraConfig, Config, load_config
 from daemon.frames import Frame
 from daemon.recordings import open_recording
 from daemon.service import Service
+from sdvl.errors import InputError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

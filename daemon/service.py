@@ -20,7 +20,6 @@ from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from calib.errors import InputError
 from daemon import messages
 from daemon.autopilot_watch import AutopilotWatch
 from daemon.camera import CaptureThread, FrameSource
@@ -33,6 +32,7 @@ from daemon.origin import OriginSetter
 from daemon.sdnotify import Notifier
 from daemon.statustext import StatusTexts
 from daemon.tracking import TrackedFrame, TrackingThread
+from sdvl.errors import InputError
 
 log = logging.getLogger("sdvl.service")
 HOUSEKEEPING_S = 0.05

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.errors import InputError
+from sdvl.errors import InputError
 from sim.metrics import ALIGNMENTS, align_trajectories, evaluate
 from sim.trajectory import Trajectory, read_tum
 

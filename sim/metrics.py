@@ -7,7 +7,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from calib.errors import InputError
+from sdvl.errors import InputError
 from sim.trajectory import Trajectory
 
 ALIGNMENTS = ("sim3", "se3", "none")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.errors import InputError
+from sdvl.errors import InputError
 from sim.metrics import Aligned
 from sim.trajectory import Trajectory
 

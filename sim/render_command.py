@@ -11,7 +11,7 @@ from pathlib import Path
 import cv2
 
 from calib.camera_yaml import save_camera
-from calib.errors import InputError
+from sdvl.errors import InputError
 from sim.datasets.layout import write_imu_csv, write_rig_yaml, write_sensors_csv
 from sim.synth.flight import synthetic_sequence
 from sim.synth.presets import PRESETS

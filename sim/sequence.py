@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from calib.camera import CameraModel
-from calib.errors import InputError
 from daemon.recordings import load_grey
+from sdvl.errors import InputError
 from sim.trajectory import Trajectory
 
 

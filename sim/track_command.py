@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.errors import InputError
+from sdvl.errors import InputError
 from sim.trajectory import Trajectory, write_tum
 
 PROGRESS_EVERY_S = 2.0

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.errors import InputError
+from sdvl.errors import InputError
 
 DEFAULT_SEQUENCES = ("vamr_ex01_checkerboard736", "kitti00_first200", "tum_fr1_rpy")
 # the eight configurations of thesis 7.1 (Config1..Config8): matcher x local BA x outlier

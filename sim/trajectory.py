@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calib.textfile import check_increasing, read_numeric_table
+from sdvl.textfile import check_increasing, read_numeric_table
 
 TUM_HEADER = "# timestamp tx ty tz qx qy qz qw"
 

@@ -6,8 +6,8 @@ import json
 
 import pytest
 
+from sdvl.cli import main
 from sim.bench_latency_command import report
-from sim.cli import main
 from sim.replay.autopilot_process import VisionMessage
 
 

@@ -11,7 +11,7 @@ import pytest
 
 from calib.camera_yaml import load_camera
 from calib.formats import read_camera_file
-from sim.cli import main
+from sdvl.cli import main
 
 BOARD = ["--cols", "9", "--rows", "6", "--square", "0.025"]
 

@@ -8,9 +8,9 @@ import cv2
 import pytest
 
 from calib.camera import CameraModel
-from calib.errors import InputError
 from calib.formats import FORMATS, read_camera_file, write_camera_file
-from sim.cli import main
+from sdvl.cli import main
+from sdvl.errors import InputError
 
 CAMERAS = {
     "radtan_k3": CameraModel(640, 480, 535.91573396163199, 535.12345678901234, 342.28315473308373,

@@ -16,7 +16,7 @@ from calib.calibration import View
 from calib.camera import CameraModel
 from calib.camera_yaml import load_camera
 from calib.view_selection import calibrate_robustly
-from sim.cli import main
+from sdvl.cli import main
 
 SUPERSAMPLE = 2
 BACKGROUND = 90

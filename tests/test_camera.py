@@ -9,7 +9,7 @@ import pytest
 
 from calib.camera import CameraModel, project_point, unproject_pixel
 from calib.camera_yaml import load_camera, save_camera
-from calib.errors import InputError
+from sdvl.errors import InputError
 
 FISHEYE = CameraModel(640, 480, 285.7, 286.1, 321.4, 238.9, "equidistant",
                       (-0.0113, 0.0472, -0.0453, 0.0121))

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from sim.cli import COMMANDS, main
+from sdvl.cli import COMMANDS, main
 
 
 @pytest.mark.parametrize("command", sorted(COMMANDS))
@@ -30,6 +30,6 @@ def test_unknown_command_exits_2():
 
 
 def test_installed_entry_point_runs():
-    result = subprocess.run([sys.executable, "-m", "sim.cli", "--help"], capture_output=True,
+    result = subprocess.run([sys.executable, "-m", "sdvl.cli", "--help"], capture_output=True,
                             text=True, check=False)
     assert result.returncode == 0 and "eval" in result.stdout

@@ -7,9 +7,9 @@ import socket
 import pytest
 
 from daemon.autopilot_params import check_parameters, from_wire, parameter_names, wire_value
+from sdvl.cli import main
 from sim.autopilot import SimAutopilot, SimOptions
 from sim.autopilot.params import INT32, PX4_PARAMS
-from sim.cli import main
 
 
 def check(sim: SimAutopilot, capsys, *extra: str) -> tuple[int, str]:

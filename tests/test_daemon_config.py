@@ -8,10 +8,10 @@ import tomllib
 
 import pytest
 
-from calib.errors import InputError
 from daemon.config import EXAMPLE_CONFIG, SECTIONS, Config, config_from_dict, load_config
 from daemon.link import parse_link_url
-from sim.cli import main
+from sdvl.cli import main
+from sdvl.errors import InputError
 
 
 def test_example_config_documents_every_key_with_its_default():

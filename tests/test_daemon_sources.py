@@ -15,9 +15,9 @@ from daemon_helpers import FakeTracker, RunningService, service_config, wait_for
 
 from calib.camera import CameraModel
 from calib.camera_yaml import save_camera
-from calib.errors import InputError
 from daemon.camera import CaptureThread, OpenCVSource, SequenceSource, TestPatternSource
 from daemon.frames import Frame, LatestSlot
+from sdvl.errors import InputError
 from sim.autopilot import SimAutopilot, SimOptions
 from sim.sequence import Sequence
 

@@ -94,7 +94,7 @@ def test_sdvl_run_under_notify_socket_and_sigterm(tmp_path):
                           '[service]\nstatus_interval_s = 0.5\n')
         env = {**os.environ, "NOTIFY_SOCKET": str(tmp_path / "notify"),
                "WATCHDOG_USEC": "600000"}
-        proc = subprocess.Popen([sys.executable, "-m", "sim.cli", "run", "--config", str(config)],
+        proc = subprocess.Popen([sys.executable, "-m", "sdvl.cli", "run", "--config", str(config)],
                                 env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                 text=True)
         try:

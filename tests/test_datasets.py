@@ -12,8 +12,8 @@ from scipy.spatial.transform import Rotation
 
 from calib.camera import CameraModel
 from calib.camera_yaml import save_camera
-from calib.errors import InputError
 from conftest import REAL_SEQUENCES
+from sdvl.errors import InputError
 from sim.datasets import open_sequence
 
 EXPECTED = {  # frames, (height, width)

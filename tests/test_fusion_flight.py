@@ -14,8 +14,8 @@ from daemon.config import MountingConfig
 from daemon.fusion.config import FusionConfig
 from daemon.fusion.estimator import FusionEstimator
 from daemon.fusion.state import LOG_SCALE
+from sdvl.cli import main
 from sim import fusion_sim as fh
-from sim.cli import main
 
 TAKEOFF_START_S = 1.0
 TRACKER = fh.TrackerOptions(weak=((20.0, 24.0),), lost=((40.0, 40.5),))

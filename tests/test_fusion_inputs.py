@@ -10,12 +10,12 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 from scipy.spatial.transform import Rotation
 
-from calib.errors import InputError
 from daemon.fusion.attitude import AttitudeTrack
 from daemon.fusion.clock import ClockMap
 from daemon.fusion.config import FusionConfig
 from daemon.fusion.sensors import Attitude, Baro, Imu, Range, parse, pressure_altitude
 from daemon.fusion.state import matrix_to_rotvec, rotvec_to_matrix
+from sdvl.errors import InputError
 
 DOWN = mavlink2.MAV_SENSOR_ROTATION_PITCH_270
 

@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 from daemon.config import MountingConfig
 from daemon.mount_test import MountTest
 from daemon.mounting import body_from_camera
-from sim.cli import main
+from sdvl.cli import main
 from vo.result import FrameResult
 
 MOVES = {"FORWARD": [1.0, 0.0, 0.0], "RIGHT": [0.0, 1.0, 0.0], "UP": [0.0, 0.0, -1.0]}

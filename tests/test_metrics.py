@@ -12,7 +12,7 @@ from evo.tools import file_interface
 from scipy.spatial.transform import Rotation
 
 from conftest import REAL_SEQUENCES
-from sim.cli import main
+from sdvl.cli import main
 from sim.metrics import evaluate, interpolate, umeyama
 from sim.trajectory import Trajectory, read_tum, write_tum
 

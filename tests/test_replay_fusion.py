@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 from calib.camera import CameraModel
 from daemon.config import Config, replace
 from daemon.mounting import body_from_camera
-from sim.cli import main
+from sdvl.cli import main
 from sim.metrics import align_trajectories
 from sim.replay.fusion_scores import fusion_scores, nees_per_dof, takeoff_time, velocity_at
 from sim.replay.harness import run_replay

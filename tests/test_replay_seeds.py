@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calib.errors import InputError
-from sim.cli import main
+from sdvl.cli import main
+from sdvl.errors import InputError
 from sim.replay.fusion_scores import compass_bias_deg, nees_per_dof
 from sim.replay.seeds import format_seeds, parse_seeds, summarize
 

@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from sim.cli import main
+from sdvl.cli import main
 
 REQUIRED = ("frames", "processed", "dropped", "tracked", "ate_rmse_m", "latency_ms_p99",
             "messages_received", "resets")

@@ -13,9 +13,9 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 from scipy.spatial.transform import Rotation
 
-from calib.errors import InputError
 from daemon.config import Config, replace
 from daemon.mounting import body_from_camera
+from sdvl.errors import InputError
 from sim.autopilot.vehicle import sensor_message
 from sim.datasets.layout import SensorSamples
 from sim.replay.autopilot_process import ReplayVehicle, VisionMessage

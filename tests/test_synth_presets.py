@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim.cli import main
+from sdvl.cli import main
 from sim.datasets import open_sequence
 from sim.synth.flight import synthetic_sequence
 from sim.synth.presets import PRESETS

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from sim.cli import main
+from sdvl.cli import main
 from sim.track_command import FRAME_COLUMNS, format_report
 from sim.trajectory import read_tum
 

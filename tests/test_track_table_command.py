@@ -8,7 +8,7 @@ import json
 import pytest
 
 import sim.track_command
-from sim.cli import main
+from sdvl.cli import main
 from sim.track_table_command import CONFIGS, THESIS_NAMES, config_names
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from calib.errors import InputError
+from sdvl.errors import InputError
 from vo.config import TrackerConfig
 
 

@@ -12,7 +12,7 @@ import pytest
 from vo_scenes import pair_truth, sample_corners, textured_pair
 
 import vo.orb
-from calib.errors import InputError
+from sdvl.errors import InputError
 from sim.metrics import evaluate
 from sim.trajectory import Trajectory
 from vo.config import TrackerConfig

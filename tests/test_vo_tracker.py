@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from vo_scenes import load_texture, look_down_pose, render_plane, small_camera
 
-from calib.errors import InputError
+from sdvl.errors import InputError
 from sim.metrics import evaluate
 from sim.trajectory import Trajectory
 from vo.config import TrackerConfig

@@ -6,8 +6,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from calib.errors import InputError
-from calib.tables import dataclass_from_table, read_toml
+from sdvl.errors import InputError
+from sdvl.tables import dataclass_from_table, read_toml
 
 
 @dataclass

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from calib.camera import CameraModel
-from calib.errors import InputError
+from sdvl.errors import InputError
 from vo import bundle_adjustment, outlier_rejection, sparse_align
 from vo.config import TrackerConfig
 from vo.depth_filter import converged

@@ -10,10 +10,10 @@ from pathlib import Path
 
 from calib import camera_yaml
 from calib.camera import CameraModel
-from calib.errors import InputError
 from calib.formats import kalibr, opencv_storage, ros
 from calib.formats.documents import read_document
 from calib.formats.slam_config import OrbSlam, SdvlConfig
+from sdvl.errors import InputError
 
 
 class _SdvlYaml:

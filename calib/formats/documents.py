@@ -15,7 +15,7 @@ import numpy as np
 import yaml
 
 from calib.camera import CameraModel, canonical_model_name
-from calib.errors import InputError, read_text
+from sdvl.errors import InputError, read_text
 
 _OPENCV_HEADER = re.compile(r"\A\s*%YAML[: ]1\.\d+\s*\n(---\s*\n)?")
 

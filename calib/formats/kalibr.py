@@ -12,8 +12,8 @@ from pathlib import Path
 import yaml
 
 from calib.camera import CameraModel
-from calib.errors import InputError
 from calib.formats.documents import make_camera, numbers, write_text
+from sdvl.errors import InputError
 
 NAME = "kalibr"
 DESCRIPTION = "Kalibr camchain YAML (cam0: intrinsics, distortion_coeffs, resolution)"

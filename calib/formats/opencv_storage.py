@@ -13,8 +13,8 @@ import cv2
 import numpy as np
 
 from calib.camera import CameraModel
-from calib.errors import InputError
 from calib.formats.documents import full_coefficients, make_camera, number, numbers
+from sdvl.errors import InputError
 
 NAME = "opencv"
 DESCRIPTION = "OpenCV FileStorage YAML/XML (camera_matrix, distortion_coefficients; .xml = XML)"

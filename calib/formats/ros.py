@@ -11,8 +11,8 @@ from pathlib import Path
 import yaml
 
 from calib.camera import CameraModel
-from calib.errors import InputError
 from calib.formats.documents import full_coefficients, make_camera, number, numbers, write_text
+from sdvl.errors import InputError
 
 NAME = "ros"
 DESCRIPTION = "ROS camera_info YAML (image_width, camera_matrix, distortion_model, ...)"

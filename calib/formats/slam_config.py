@@ -11,8 +11,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from calib.camera import CameraModel
-from calib.errors import InputError
 from calib.formats.documents import full_coefficients, make_camera, number, write_text
+from sdvl.errors import InputError
 
 _HEADER = "%YAML:1.0\n---\n"
 

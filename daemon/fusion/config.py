@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from calib.errors import InputError
+from sdvl.errors import InputError
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from calib.camera import CameraModel
 from calib.camera_yaml import load_camera
-from calib.errors import InputError
+from sdvl.errors import InputError
 from sim.datasets.euroc import euroc_root, read_euroc
 from sim.datasets.files import VIDEO_SUFFIXES, read_image_folder, read_video
 from sim.datasets.kitti import is_kitti, read_kitti

@@ -9,8 +9,8 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from calib.camera import CameraModel
-from calib.errors import InputError
-from calib.textfile import check_increasing, read_lines, read_numeric_table
+from sdvl.errors import InputError
+from sdvl.textfile import check_increasing, read_lines, read_numeric_table
 from sim.sequence import ImuSamples, Sequence, image_list_sequence
 from sim.trajectory import Trajectory
 

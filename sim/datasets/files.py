@@ -9,9 +9,9 @@ import numpy as np
 
 from calib.camera import CameraModel
 from calib.camera_yaml import load_camera
-from calib.errors import InputError
 from daemon.camera import grey
 from daemon.recordings import DEFAULT_FPS, open_recording
+from sdvl.errors import InputError
 from sim.sequence import Sequence, image_list_sequence
 
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mkv", ".mov", ".webm", ".m4v", ".mpg", ".mpeg"}

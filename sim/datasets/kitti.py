@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 
 from calib.camera import CameraModel
-from calib.errors import InputError
-from calib.textfile import check_increasing, parse_floats, read_lines, read_numeric_table
+from sdvl.errors import InputError
+from sdvl.textfile import check_increasing, parse_floats, read_lines, read_numeric_table
 from sim.sequence import Sequence, image_list_sequence, load_grey
 from sim.trajectory import Trajectory
 

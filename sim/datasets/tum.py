@@ -7,9 +7,9 @@ from pathlib import Path
 
 from calib.camera import CameraModel
 from calib.camera_yaml import load_camera
-from calib.errors import InputError
-from calib.textfile import read_numeric_table
 from daemon.recordings import read_frame_list
+from sdvl.errors import InputError
+from sdvl.textfile import read_numeric_table
 from sim.sequence import ImuSamples, Sequence, image_list_sequence
 from sim.trajectory import read_tum
 

@@ -12,9 +12,9 @@ import argparse
 import json
 from pathlib import Path
 
-from calib.errors import InputError
 from daemon.config import Config, load_config
 from daemon.run_command import setup_logging
+from sdvl.errors import InputError
 from sim.replay.flight import SENSOR_STREAMS, is_ned
 from sim.replay.harness import choose_estimator, during_replay, run_replay
 from sim.replay.report import build_report, format_report

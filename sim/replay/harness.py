@@ -18,11 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.errors import InputError
 from daemon.camera import SequenceSource
 from daemon.config import Config, replace
 from daemon.run_command import tracker_factory
 from daemon.service import Service
+from sdvl.errors import InputError
 from sim.autopilot import SimOptions
 from sim.replay.autopilot_process import AutopilotProcess, VisionMessage
 from sim.replay.flight import (

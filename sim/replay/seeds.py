@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.errors import InputError
+from sdvl.errors import InputError
 
 MAX_SEEDS = 100
 

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib.camera import CameraModel
-from calib.errors import InputError
+from sdvl.errors import InputError
 from sim.sequence import Sequence
 from sim.synth.effects import DARK_LEVEL, exposure_gain, finish, subframe_count
 from sim.synth.events import frame_times

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib.camera import CameraModel
-from calib.errors import InputError
+from sdvl.errors import InputError
 from sim.synth.effects import Effects
 from sim.synth.events import Interval, crowd_leaving, walkers_across
 from sim.synth.scene import Scene

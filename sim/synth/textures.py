@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calib.errors import InputError
+from sdvl.errors import InputError
 
 TEXTURE_SUFFIXES = (".jpg", ".jpeg", ".png")
 MIN_LEVEL_SIZE = 4

@@ -1,7 +1,6 @@
 """Settings tables: TOML files read into validated dataclasses, with errors naming the key.
 
-Shared by the tracker's and the service's configs (it lives in calib, the package every other
-one may import).
+Shared by the tracker's and the service's configs.
 """
 
 from __future__ import annotations
@@ -12,7 +11,7 @@ import typing
 from collections.abc import Iterable
 from pathlib import Path
 
-from calib.errors import InputError, read_text
+from sdvl.errors import InputError, read_text
 
 TYPE_NAMES = {int: "an integer", float: "a number", bool: "true or false", str: "a string"}
 

@@ -10,7 +10,7 @@ import argparse
 import importlib
 import sys
 
-from calib.errors import InputError
+from sdvl.errors import InputError
 
 EXIT_USER_ERROR = 2
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.errors import InputError, read_text
+from sdvl.errors import InputError, read_text
 
 
 def read_lines(path: str | Path) -> Iterator[tuple[int, list[str]]]:
