@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import common as mavlink2
 
 from daemon import messages
-from daemon.autopilot_watch import AutopilotWatch
+from daemon.autopilot_watch import AutopilotWatch, Event
 from daemon.camera import CaptureThread, FrameSource
 from daemon.config import Config
 from daemon.estimate import Estimator, PassThroughEstimator, VisionEstimate
@@ -81,7 +81,10 @@ class Service:
         self.min_interval_s = 1.0 / config.mavlink.max_rate_hz
         self.codec = MavlinkCodec(config.mavlink.system_id, config.mavlink.component_id,
                                   self._write, self._on_message)
-        self.watch = AutopilotWatch(config.mavlink.heartbeat_timeout_s)
+        mav = config.mavlink
+        self.watch = AutopilotWatch(mav.heartbeat_timeout_s, mav.autopilot_system_id,
+                                    mav.autopilot_component_id,
+                                    own=(mav.system_id, mav.component_id))
         self.origin = (OriginSetter(config.origin, self.codec.mav, self.codec.send)
                        if config.origin.enabled else None)
         self.texts = StatusTexts(config.mavlink.statustext_interval_s, self._send_text)
@@ -222,26 +225,35 @@ class Service:
         return self.codec.send(self.codec.mav.statustext_encode(severity, text.encode()))
 
     def _on_message(self, msg: object) -> None:
+        """TIMESYNC requests are answered whoever asks; everything else is used only when it
+        comes from the bound autopilot (autopilot_watch.py)."""
         now = time.monotonic()
         if msg.get_type() == "TIMESYNC" and msg.tc1 == 0:
             self.codec.send(self.codec.mav.timesync_encode(time.monotonic_ns(), msg.ts1))
             self.stats.timesync_replies += 1
-        for event in self.watch.on_message(msg, now):
+        verdict = self.watch.receive(msg, now)
+        for event in verdict.events:
             self._autopilot_event(event, now)
+        if not verdict.accepted:
+            return
         if self.origin is not None:
             text = self.origin.on_message(msg)
             if text:
                 self.texts.report(text, now)
         self.estimator.on_autopilot_message(msg)
 
-    def _autopilot_event(self, event: str, now: float) -> None:
+    def _autopilot_event(self, event: Event, now: float) -> None:
         watch = self.watch
-        if event == "lost":
+        if event is Event.LOST:
             log.warning("autopilot heartbeat lost for %.1f s", watch.timeout_s)
+            return
+        if event is Event.CLOCK_JUMPED:
+            log.warning("autopilot boot clock jumped %+.1f s without a reboot",
+                        watch.clock.jump_s)
             return
         log.info("autopilot %s: system %d component %d (%s)", event, watch.system_id,
                  watch.component_id, watch.flavour)
-        if event in ("reconnected", "rebooted"):
+        if event in (Event.RECONNECTED, Event.REBOOTED):
             if self.origin is not None:
                 self.origin.restart()
             self.texts.report(f"autopilot {event}", now)

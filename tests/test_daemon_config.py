@@ -77,12 +77,12 @@ def test_values_from_a_file_must_be_finite_and_in_range(tmp_path, line, message)
 def test_tracker_numbers_must_be_finite():
     from vo.config import TrackerConfig
 
-    with pytest.raises(InputError, match="tracker.ransac_threshold_px must be a finite number"):
+    with pytest.raises(InputError, match=r"tracker\.ransac_threshold_px must be a finite number"):
         TrackerConfig.from_dict({"ransac_threshold_px": float("nan")})
 
 
 def test_programmatic_copies_are_checked_too():
-    with pytest.raises(InputError, match="mavlink.max_latency_s must be in"):
+    with pytest.raises(InputError, match=r"mavlink\.max_latency_s must be in"):
         replace(Config(), mavlink={"max_latency_s": 1e6})
 
 
