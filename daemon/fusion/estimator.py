@@ -30,6 +30,7 @@ from daemon.fusion.clock import ClockMap
 from daemon.fusion.config import FusionConfig
 from daemon.fusion.output import build_estimate, inflation
 from daemon.fusion.sensors import BARO_PRIORITY, IMU_PRIORITY, Attitude, Baro, Imu, Range, parse
+from daemon.fusion.source_choice import SourceChoice
 from daemon.fusion.state import ANCHOR, LOG_SCALE, POS, NavFilter
 from daemon.fusion.timeline import Event, Timeline
 from daemon.mounting import body_from_camera
@@ -90,6 +91,7 @@ class FusionEstimator:
         self.clock = ClockMap(cfg.clock_offset_window_s)
         self.timeline = Timeline(cfg.history_s)
         self.sources: dict[str, str] = {}  # "imu"/"baro" -> the message type fused
+        self._choices: dict[str, SourceChoice] = {}
         self.dropped_stamps = 0
         self._inbox: deque[tuple[float, object]] = deque(maxlen=INBOX_LIMIT)
         self._lock = threading.Lock()
@@ -185,12 +187,10 @@ class FusionEstimator:
                 self._add_stream("baro", sample, BARO_PRIORITY)
 
     def _add_stream(self, kind: str, sample: Imu | Baro, priority: dict[str, int]) -> None:
-        """Fuse one stream of a kind: the best source seen so far (see sensors.py)."""
-        current = self.sources.get(kind)
-        if current is None or priority[sample.source] < priority[current]:
+        """Fuse one stream of a kind: the preferred one that streams steadily (source_choice)."""
+        choice = self._choices.setdefault(kind, SourceChoice(kind, priority))
+        if choice.offer(sample.source, sample.t):
             self.sources[kind] = sample.source
-            log.info("fusion: %s from %s", kind, sample.source)
-        if sample.source == self.sources[kind]:
             self.timeline.add(sample.t, kind, sample)
 
     # --- the filter ---------------------------------------------------------------------------
