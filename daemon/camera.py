@@ -19,7 +19,10 @@ import cv2
 import numpy as np
 
 from calib.camera import CameraModel
-from daemon.frames import Frame, LatestSlot
+from daemon.frames import BadFrame, Frame, FrameCheck, FrameError, LatestSlot
+from daemon.health import Health
+from daemon.recordings import Recording
+from sdvl.errors import InputError
 
 log = logging.getLogger("sdvl.camera")
 DEVICE_STAMP_MAX_AGE_S = 0.5  # trust a driver's buffer stamp only if it is this recent
@@ -163,6 +166,31 @@ class SequenceSource:
         """Nothing to release; the iterator continues if the capture thread reopens."""
 
 
+class RecordingSource(SequenceSource):
+    """Recorded frames on disk (daemon/recordings.py) played as a camera. Each image is read
+    when it is due; one that is missing or cannot be decoded is a FrameError, so the stream
+    goes on with the next (a folder renamed during a run gives missing frames until it is
+    back)."""
+
+    sequence: Recording
+
+    def open(self) -> None:
+        if self._frames is None:
+            self._frames = zip(self.sequence.timestamps, self.sequence.files, strict=True)
+
+    def read(self) -> tuple[float, float, np.ndarray] | None:
+        item = next(self._frames, None)
+        if item is None:
+            return None
+        t, path = float(item[0]), item[1]
+        t_capture = self._pacer.wait(t) if self._pacer else time.monotonic()
+        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if image is None:
+            kind = BadFrame.UNREADABLE if path.is_file() else BadFrame.MISSING
+            raise FrameError(kind, str(path))
+        return t, t_capture, image
+
+
 class TestPatternSource:
     """A textured scene seen by a camera drifting on a small circle: frames at `fps` with no
     hardware, for bring-up, benchmarks and tests."""
@@ -202,25 +230,49 @@ class TestPatternSource:
 
 
 class CaptureThread(threading.Thread):
-    """Reads a source into the slot; reopens it with back-off when it fails or disappears."""
+    """Reads a source into the slot; reopens it with back-off when it fails or disappears.
+
+    Input never stops it: a frame the source cannot produce (FrameError) or one the tracker
+    cannot take (FrameCheck) is counted and skipped. What the service watches: `busy` (the
+    source call in progress and since when, to see a device that never answers), the time of
+    the last good frame and of the last read, and `error` when the thread stopped on a size
+    the calibration does not fit (InputError) or on a bug."""
 
     def __init__(self, source: FrameSource, slot: LatestSlot, backoff: tuple[float, float],
-                 on_state: Callable[[str], None] = lambda state: None):
+                 on_state: Callable[[str], None] = lambda state: None,
+                 check: FrameCheck | None = None):
         super().__init__(name="capture", daemon=True)
         self.source, self.slot, self.backoff = source, slot, backoff
         self.on_state = on_state
+        self.check = check or FrameCheck()
         self.stopping = threading.Event()
         self.frames = 0
-        self.finished = False
+        self.finished = False  # the finite source ended (not a failure)
+        self.error: BaseException | None = None
+        self.busy: tuple[str, float] | None = None  # ("open" or "read", monotonic start)
+        self.last_frame_t: float | None = None  # monotonic time of the last good frame
+        self.last_read_t: float | None = None  # ... of the last read that returned at all
 
     def run(self) -> None:
+        try:
+            self._run()
+        except InputError as exc:  # the calibration does not fit the frames: config
+            self.error = exc
+        except Exception as exc:  # a bug: the service sees the thread end and restarts
+            log.exception("capture thread failed")
+            self.error = exc
+        finally:
+            self.busy = None
+            self.slot.close()
+
+    def _run(self) -> None:
         delay = self.backoff[0]
         while not self.stopping.is_set():
             try:
-                self.source.open()
-            except OSError as exc:
+                self._call("open", self.source.open)
+            except Exception as exc:  # OSError: not there; anything else: the driver's fault
                 log.warning("camera %s: %s; retrying in %.1f s", self.source.name, exc, delay)
-                self.on_state("no camera")
+                self.on_state(Health.NO_CAMERA)
                 self.stopping.wait(delay)
                 delay = min(2 * delay, self.backoff[1])
                 continue
@@ -230,28 +282,45 @@ class CaptureThread(threading.Thread):
             self.source.close()
             if ended:
                 break
-        self.finished = True
-        self.slot.close()
+
+    def _call(self, what: str, fn: Callable[[], object]) -> object:
+        """fn() with `busy` saying what is in progress since when."""
+        self.busy = (what, time.monotonic())
+        try:
+            return fn()
+        finally:
+            self.busy = None
+            self.last_read_t = time.monotonic() if what == "read" else self.last_read_t
 
     def _pump(self) -> bool:
         """Move frames into the slot until stop, failure (False) or a finite end (True)."""
         while not self.stopping.is_set():
             try:
-                item = self.source.read()
+                item = self._call("read", self.source.read)
             except OSError as exc:
                 log.warning("camera %s: %s; reopening", self.source.name, exc)
-                self.on_state("no camera")
+                self.on_state(Health.NO_CAMERA)
                 return False
+            except FrameError as exc:
+                self.check.bad(exc.kind, exc.detail)
+                continue
+            except Exception as exc:  # a decoder or driver error on one frame
+                self.check.bad(BadFrame.UNREADABLE, f"{type(exc).__name__}: {exc}")
+                continue
             if item is None:
                 if self.source.finite:
                     log.info("camera %s: end of stream after %d frames", self.source.name,
                              self.frames)
+                    self.finished = True
                     return True
                 return False
             t_source, t_capture, image = item
+            if not self.check.check(t_source, image):
+                continue
             if not self.slot.put(Frame(self.frames, t_source, t_capture, image),
                                  wait=not self.source.live):
                 return True
+            self.last_frame_t = time.monotonic()
             self.frames += 1
         return True
 

@@ -179,3 +179,14 @@ def replace(cfg: Config, **sections: dict) -> Config:
     _check_ranges(out, None)
     return out
 
+
+
+def changed_keys(old: Config, new: Config) -> list[str]:
+    """'section.key' for every setting that differs between two configs."""
+    out = [f"tracker.{k}" for k in sorted(set(old.tracker) | set(new.tracker))
+           if old.tracker.get(k) != new.tracker.get(k)]
+    for name in SECTIONS:
+        a, b = getattr(old, name), getattr(new, name)
+        out += [f"{name}.{f.name}" for f in dataclasses.fields(a)
+                if getattr(a, f.name) != getattr(b, f.name)]
+    return out

@@ -1,8 +1,11 @@
 """The companion service: capture and tracking threads, and an asyncio loop that only does I/O.
 
 The loop owns the MAVLink link: vision messages as estimates arrive (never faster than
-`max_rate_hz`, never stale, never twice), HEARTBEAT at 1 Hz, TIMESYNC answers, the EKF origin,
-STATUSTEXT on state changes, the autopilot heartbeat watchdog and the systemd notifications.
+`max_rate_hz`, never stale, never twice, never a value that is not finite), HEARTBEAT at 1 Hz,
+TIMESYNC answers, the EKF origin, STATUSTEXT on state changes, the autopilot watch (one bound
+autopilot, autopilot_watch.py), the health of camera and threads (health.py) and the systemd
+notifications. Exit codes: 0 stopped, 1 a fault systemd should restart it for, 2 a
+configuration a human must fix (systemd/README.md).
 """
 
 from __future__ import annotations
@@ -18,79 +21,90 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from daemon import messages
 from daemon.autopilot_watch import AutopilotWatch, Event
 from daemon.camera import CaptureThread, FrameSource
-from daemon.config import Config
+from daemon.config import Config, changed_keys, replace
 from daemon.estimate import Estimator, PassThroughEstimator, VisionEstimate
-from daemon.frames import Frame, LatestSlot
+from daemon.frames import BadFrame, Frame, FrameCheck, LatestSlot
+from daemon.health import Fault, Health, HealthCheck
 from daemon.link import open_link
 from daemon.mavlink_codec import MavlinkCodec
 from daemon.origin import OriginSetter
 from daemon.sdnotify import Notifier
-from daemon.statustext import StatusTexts
+from daemon.statustext import PREFIX, StatusTexts
 from daemon.tracking import TrackedFrame, TrackingThread
 from sdvl.errors import InputError
 
 log = logging.getLogger("sdvl.service")
 HOUSEKEEPING_S = 0.05
-NO_FRAMES_S = 1.0  # no processed frame for this long: the camera is gone
 THREAD_JOIN_S = 0.7
+# READY waits this long for the first frame, so a calibration that does not fit the frames is
+# reported (exit code 2) before systemd is told the service runs; well under TimeoutStartSec
+FIRST_FRAME_WAIT_S = 20.0
 # A waiting thread gets the GIL within this time (Python's default is 5 ms): a frame or an
 # estimate handed between capture, tracking and the loop must not wait for the mapping thread.
 GIL_SWITCH_INTERVAL_S = 0.0005
-SEVERITY = {"good": mavlink2.MAV_SEVERITY_INFO, "initializing": mavlink2.MAV_SEVERITY_INFO,
-            "insufficient": mavlink2.MAV_SEVERITY_WARNING, "bad": mavlink2.MAV_SEVERITY_WARNING,
-            "lost": mavlink2.MAV_SEVERITY_CRITICAL, "no camera": mavlink2.MAV_SEVERITY_CRITICAL}
-STATE_TEXT = {"good": "tracking good", "initializing": "initializing map",
-              "insufficient": "tracking weak", "bad": "tracking bad", "lost": "tracking lost",
-              "no camera": "camera lost"}
+EXIT_FAULT, EXIT_CONFIG = 1, 2
+RELOADABLE = ("service.log_level", "mavlink.statustext_interval_s")
 
 
 @dataclass
 class ServiceStats:
-    """Counters and recent timings, for STATUS lines, tests and the latency benchmark."""
+    """Counters and recent send latencies, for STATUS lines and tests."""
 
     frames: int = 0
     sent: int = 0
     skipped_rate: int = 0
     skipped_stale: int = 0
     skipped_duplicate: int = 0
+    skipped_not_finite: int = 0
     timesync_replies: int = 0
-    send_latency_s: deque = field(default_factory=lambda: deque(maxlen=100_000))
-    track_s: deque = field(default_factory=lambda: deque(maxlen=100_000))
+    send_latency_s: deque = field(default_factory=lambda: deque(maxlen=100))
+
+
+def not_finite(e: VisionEstimate) -> bool:
+    """Whether any value the vision messages carry is NaN or infinite."""
+    return not all(np.all(np.isfinite(a)) for a in (
+        e.position, e.R_local_body, e.velocity_local, e.velocity_body, e.angular_rate,
+        e.pose_covariance, e.velocity_covariance))
 
 
 class Service:
-    """Runs until `stop()`, SIGTERM (installed by the caller) or the end of a finite source."""
+    """Runs until `stop()`, SIGTERM (installed by the caller), the end of a finite source, or
+    a fault (`exit_code` says which)."""
 
     def __init__(self, config: Config, source: FrameSource,
                  make_tracker: Callable[[Frame], object], estimator: Estimator | None = None,
                  notifier: Notifier | None = None,
-                 on_tracked: Callable[[TrackedFrame, bool], None] | None = None):
+                 on_tracked: Callable[[TrackedFrame, bool], None] | None = None,
+                 size_ok: Callable[[int, int], None] | None = None):
         self.cfg = config
         self.source = source
         self.make_tracker = make_tracker
         self.estimator = estimator or self._default_estimator()
         self.notifier = notifier or Notifier()
         self.on_tracked = on_tracked
+        self.size_ok = size_ok  # raises InputError for a frame size the calibration cannot fit
         self.stats = ServiceStats()
-        self.state = "starting"
+        self.state = Health.STARTING
+        self.fault: Fault | None = None
+        self.health = HealthCheck(config.camera.stall_timeout_s, config.mavlink.max_latency_s)
         self.min_interval_s = 1.0 / config.mavlink.max_rate_hz
-        self.codec = MavlinkCodec(config.mavlink.system_id, config.mavlink.component_id,
-                                  self._write, self._on_message)
         mav = config.mavlink
+        self.codec = MavlinkCodec(mav.system_id, mav.component_id, self._write,
+                                  self._on_message)
         self.watch = AutopilotWatch(mav.heartbeat_timeout_s, mav.autopilot_system_id,
                                     mav.autopilot_component_id,
                                     own=(mav.system_id, mav.component_id))
         self.origin = (OriginSetter(config.origin, self.codec.mav, self.codec.send)
                        if config.origin.enabled else None)
-        self.texts = StatusTexts(config.mavlink.statustext_interval_s, self._send_text)
-        self.link = open_link(config.mavlink.link, self.codec.feed)
+        self.texts = StatusTexts(mav.statustext_interval_s, self._send_text)
+        self.link = open_link(mav.link, self.codec.feed)
         self._last_sent_t: float | None = None
-        self._last_frame_time = time.monotonic()
         self._reset_counter = 0
         self._stop = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -110,41 +124,80 @@ class Service:
     # --- lifecycle -------------------------------------------------------------------------
 
     async def run(self) -> int:
-        """Serve until stopped; 0 on a clean stop, 2 on bad input found late, 1 on a crash."""
+        """Serve until stopped; the exit code (0 stopped, 1 fault, 2 configuration)."""
         self._loop = asyncio.get_running_loop()
         sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
         self.link.start()
-        slot = LatestSlot()
-        backoff = (self.cfg.camera.reconnect_min_s, self.cfg.camera.reconnect_max_s)
-        self.capture = CaptureThread(self.source, slot, backoff,
-                                     on_state=lambda s: self._from_thread(self._set_state, s))
-        self.tracking = TrackingThread(slot, self.make_tracker, self.estimator,
-                                       deliver=lambda tf: self._from_thread(self._on_tracked, tf),
-                                       on_end=lambda: self._from_thread(self._stop.set))
+        self._make_threads()
         if not self.source.live:  # a replay as fast as possible must not outrun the link
             while not self.link.connected and not self._stop.is_set():
                 await asyncio.sleep(HOUSEKEEPING_S)
         self.capture.start()
         self.tracking.start()
-        tasks = [asyncio.create_task(coro) for coro in
-                 (self._heartbeats(), self._housekeeping(), self._systemd())]
-        self.notifier.notify("READY=1", f"STATUS={self.status_line()}")
-        log.info("service started: camera %s, link %s, output %s", self.source.name,
-                 self.link.spec, self.cfg.mavlink.output)
+        tasks = [asyncio.create_task(coro) for coro in (self._heartbeats(), self._housekeeping())]
+        await self._first_frame()
+        if not self._stop.is_set():
+            tasks.append(asyncio.create_task(self._systemd()))
+            self.notifier.notify("READY=1", f"STATUS={self.status_line()}")
+            log.info("service started: camera %s, link %s, output %s", self.source.name,
+                     self.link.spec, self.cfg.mavlink.output)
         await self._stop.wait()
         await self._shutdown(tasks)
-        error = self.tracking.error
-        if isinstance(error, InputError):
-            log.error("%s", error)
-            return 2
-        return 1 if error is not None else 0
+        return self.exit_code()
+
+    def _make_threads(self) -> None:
+        slot = LatestSlot()
+        backoff = (self.cfg.camera.reconnect_min_s, self.cfg.camera.reconnect_max_s)
+        check = FrameCheck(self.size_ok,
+                           on_first_bad=lambda kind: self._from_thread(self._bad_frames, kind))
+        self.capture = CaptureThread(self.source, slot, backoff,
+                                     on_state=lambda s: self._from_thread(self._set_state, s),
+                                     check=check)
+        self.tracking = TrackingThread(slot, self.make_tracker, self.estimator,
+                                       deliver=lambda tf: self._from_thread(self._on_tracked, tf),
+                                       on_end=lambda: self._from_thread(self._stop.set))
+
+    async def _first_frame(self) -> None:
+        """Wait until the tracker was built for the first frame (its size checked), the
+        service stops, or FIRST_FRAME_WAIT_S passed (a camera still away: reported, retried)."""
+        deadline = time.monotonic() + FIRST_FRAME_WAIT_S
+        while (not self.tracking.ready.is_set() and not self._stop.is_set()
+               and time.monotonic() < deadline):
+            await asyncio.sleep(HOUSEKEEPING_S)
+
+    def exit_code(self) -> int:
+        """0 after a stop or the end of a finite source, 2 for a configuration a human must fix
+        (said in one line), 1 for any other fault (said in one line)."""
+        for thread in (self.capture, self.tracking):
+            if isinstance(thread.error, InputError):
+                log.error("%s", thread.error)
+                return EXIT_CONFIG
+        fault = self.fault or self.health.check(time.monotonic(), self.capture, self.tracking)
+        if isinstance(fault, Fault):
+            self._fail(fault)
+            return EXIT_FAULT
+        return 0
 
     def stop(self) -> None:
         """Ask the service to stop (from the loop's thread, e.g. a signal handler)."""
         self._stop.set()
 
+    def reload(self, config: Config) -> None:
+        """Take what a changed configuration can change while running (SIGHUP): the log level
+        and the STATUSTEXT interval; every other change is named as needing a restart."""
+        changed = changed_keys(self.cfg, config)
+        applied = [key for key in changed if key in RELOADABLE]
+        logging.getLogger().setLevel(config.service.log_level.upper())
+        texts_interval = self.texts.interval_s = config.mavlink.statustext_interval_s
+        self.cfg = replace(self.cfg, service={"log_level": config.service.log_level},
+                           mavlink={"statustext_interval_s": texts_interval})
+        restart = [key for key in changed if key not in RELOADABLE]
+        log.warning("SIGHUP: configuration reread; applied: %s; need a restart (systemctl "
+                    "restart sdvl-companion): %s", ", ".join(applied) or "nothing",
+                    ", ".join(restart) or "nothing")
+
     async def _shutdown(self, tasks: list[asyncio.Task]) -> None:
-        self.notifier.notify("STOPPING=1")
+        self.notifier.stopping()
         self.capture.stop()
         self.tracking.stop()
         for task in tasks:
@@ -163,21 +216,49 @@ class Service:
         with contextlib.suppress(RuntimeError):
             self._loop.call_soon_threadsafe(fn, *args)
 
-    # --- tracking results -> vision messages -------------------------------------------------
+    # --- health ----------------------------------------------------------------------------
 
-    def _set_state(self, state: str) -> None:
-        if state == self.state:
+    def _set_state(self, state: Health) -> None:
+        if state == self.state or self.fault is not None:
             return
         log.info("state: %s -> %s", self.state, state)
         self.state = state
-        if state in STATE_TEXT:
-            self.texts.report(STATE_TEXT[state], time.monotonic(), SEVERITY[state])
+        report = state.report
+        if report.text is not None:
+            self.texts.report(report.text, time.monotonic(), report.severity)
+
+    def _fail(self, fault: Fault) -> None:
+        """Say what cannot be recovered from, in one log line, a HEARTBEAT and a STATUSTEXT
+        sent at once; stop the watchdog and the service (exit code 1: systemd restarts it)."""
+        if self.fault is not None:
+            return
+        self._set_state(fault.health)
+        self.fault = fault
+        log.error("%s: stopping the watchdog and exiting (code 1) for systemd to restart the "
+                  "service", fault.reason)
+        report = fault.health.report
+        self.codec.send(messages.heartbeat(self.codec.mav, report.system_status))
+        self._send_text(report.severity, PREFIX + report.text)
+        self.notifier.notify(f"STATUS={fault.health}: {fault.reason}")
+        self._stop.set()
+
+    def _bad_frames(self, kind: BadFrame) -> None:
+        self.texts.report(f"skipping {kind} frames", time.monotonic(),
+                          mavlink2.MAV_SEVERITY_WARNING)
+
+    def _check_health(self, now: float) -> None:
+        verdict = self.health.check(now, self.capture, self.tracking)
+        if isinstance(verdict, Fault):
+            self._fail(verdict)
+        elif verdict is not None:
+            self._set_state(verdict)
+
+    # --- tracking results -> vision messages -------------------------------------------------
 
     def _on_tracked(self, tf: TrackedFrame) -> None:
         self.stats.frames += 1
-        self.stats.track_s.append(tf.track_s)
-        self._last_frame_time = time.monotonic()
-        self._set_state(tf.result.quality)
+        self._set_state(self.health.on_frame(time.monotonic(), tf.t_capture,
+                                             tf.result.quality))
         sent = False
         if tf.estimate is not None:
             if tf.estimate.reset_counter != self._reset_counter:
@@ -192,7 +273,7 @@ class Service:
 
     def _send_estimate(self, e: VisionEstimate) -> bool:
         """Send the vision message(s) for one estimate unless it is a duplicate, too soon
-        after the previous one or too old; True when sent."""
+        after the previous one, too old or not finite; True when sent."""
         now = time.monotonic()
         last = self._last_sent_t
         if last is not None and e.t_capture <= last:
@@ -203,6 +284,11 @@ class Service:
             return False
         if now - e.t_capture > self.cfg.mavlink.max_latency_s:
             self.stats.skipped_stale += 1
+            return False
+        if not_finite(e):
+            self.stats.skipped_not_finite += 1
+            if self.stats.skipped_not_finite == 1:
+                log.error("an estimate with NaN or infinity was not sent (counted from now on)")
             return False
         mav, output = self.codec.mav, self.cfg.mavlink.output
         if output in ("odometry", "both"):
@@ -268,13 +354,9 @@ class Service:
             await asyncio.sleep(HOUSEKEEPING_S)
         due = loop.time()
         while True:
-            self.codec.send(messages.heartbeat(self.codec.mav, self.heartbeat_state()))
+            self.codec.send(messages.heartbeat(self.codec.mav, self.state.report.system_status))
             due += 1.0
             await asyncio.sleep(max(0.0, due - loop.time()))
-
-    def heartbeat_state(self) -> str:
-        """The health reported in HEARTBEAT.system_status."""
-        return self.state if self.state in messages.SYSTEM_STATUS else "starting"
 
     async def _housekeeping(self) -> None:
         while True:
@@ -285,19 +367,19 @@ class Service:
                 target = ((self.watch.system_id, self.watch.component_id)
                           if self.watch.alive else None)
                 self.origin.tick(now, target)
-            if self.state != "starting" and now - self._last_frame_time > NO_FRAMES_S:
-                self._set_state("no camera")
+            self._check_health(now)
             self.texts.flush(now)
             await asyncio.sleep(HOUSEKEEPING_S)
 
     async def _systemd(self) -> None:
-        """WATCHDOG=1 while both threads live; STATUS= every status_interval_s."""
+        """WATCHDOG=1 while both threads live and nothing is blocked (a fault stops it);
+        STATUS= every status_interval_s."""
         interval = self.cfg.service.status_interval_s
         if self.notifier.watchdog_interval_s:
             interval = min(interval, self.notifier.watchdog_interval_s)
         while True:
             await asyncio.sleep(interval)
-            if self.capture.is_alive() and self.tracking.is_alive():
+            if self.fault is None and self.capture.is_alive() and self.tracking.is_alive():
                 self.notifier.notify("WATCHDOG=1", f"STATUS={self.status_line()}")
 
     def status_line(self) -> str:
@@ -307,5 +389,8 @@ class Service:
         dropped = self.capture.slot.dropped if self.capture else 0
         recent = list(itertools.islice(reversed(s.send_latency_s), 100))
         latency = f", latency {1e3 * statistics.median(recent):.0f} ms" if recent else ""
-        return (f"{self.state}; frames {s.frames}, sent {s.sent}, dropped {dropped}{latency}; "
-                f"{link}" + ("; origin set" if self.origin and self.origin.confirmed else ""))
+        bad = sum(self.capture.check.counts.values()) if self.capture else 0
+        ignored = sum(self.watch.ignored.values())
+        return (f"{self.state}; frames {s.frames}, sent {s.sent}, dropped {dropped}, bad {bad}"
+                f"{latency}; {link}, ignored {ignored}"
+                + ("; origin set" if self.origin and self.origin.confirmed else ""))
