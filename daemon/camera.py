@@ -184,10 +184,13 @@ class RecordingSource(SequenceSource):
             return None
         t, path = float(item[0]), item[1]
         t_capture = self._pacer.wait(t) if self._pacer else time.monotonic()
-        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        try:
+            data = np.fromfile(path, np.uint8)
+        except OSError as exc:
+            raise FrameError(BadFrame.MISSING, f"{path}: {exc.strerror}") from None
+        image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
         if image is None:
-            kind = BadFrame.UNREADABLE if path.is_file() else BadFrame.MISSING
-            raise FrameError(kind, str(path))
+            raise FrameError(BadFrame.UNREADABLE, str(path))
         return t, t_capture, image
 
 

@@ -41,6 +41,14 @@ def setup_logging(level: str) -> None:
     logs.setup(level)
 
 
+def quiet_opencv() -> None:
+    """OpenCV's own warnings off: a bad frame is counted and logged once by the service, not
+    once per frame by the decoder."""
+    import cv2
+
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+
+
 def open_source(cfg: CameraConfig) -> FrameSource:
     """The frame source a camera.source string names."""
     from daemon.camera import OpenCVSource, RecordingSource, TestPatternSource
@@ -146,6 +154,7 @@ def _start(args: argparse.Namespace, signals: EarlySignals, notifier: Notifier) 
 
     config = load_config(args.config)
     setup_logging(config.service.log_level)
+    quiet_opencv()
     source = open_source(config.camera)
     camera = camera_model(config.camera, source)
     numba_cache.prepare()

@@ -243,8 +243,7 @@ class Service:
         self._stop.set()
 
     def _bad_frames(self, kind: BadFrame) -> None:
-        self.texts.report(f"skipping {kind} frames", time.monotonic(),
-                          mavlink2.MAV_SEVERITY_WARNING)
+        self.texts.notice(f"skipping {kind} frames", time.monotonic())
 
     def _check_health(self, now: float) -> None:
         verdict = self.health.check(now, self.capture, self.tracking)

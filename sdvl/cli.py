@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "track-table": ("sim.track_table_command", "tracker configurations x sequences: ATE, timing"),
     "calibrate": ("calib.calibrate_command", "calibrate a camera; convert calibration files"),
     "results": ("sdvl.results", "regenerate the measurements in RESULTS.md from their commands"),
+    "faults": ("sim.faults.command", "fault injection and fuzzing of the service; memory soak"),
 }
 
 
