@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
-from daemon import messages
+from daemon import logs, messages
 from daemon.autopilot_watch import AutopilotWatch, Event
 from daemon.camera import CaptureThread, FrameSource
 from daemon.config import Config, changed_keys, replace
@@ -390,6 +390,8 @@ class Service:
         latency = f", latency {1e3 * statistics.median(recent):.0f} ms" if recent else ""
         bad = sum(self.capture.check.counts.values()) if self.capture else 0
         ignored = sum(self.watch.ignored.values())
+        lost_lines = logs.dropped_total()
         return (f"{self.state}; frames {s.frames}, sent {s.sent}, dropped {dropped}, bad {bad}"
                 f"{latency}; {link}, ignored {ignored}"
-                + ("; origin set" if self.origin and self.origin.confirmed else ""))
+                + ("; origin set" if self.origin and self.origin.confirmed else "")
+                + (f"; {lost_lines} log lines lost" if lost_lines else ""))
