@@ -274,8 +274,8 @@ class FusionEstimator:
         scale from elsewhere (std above coarse_scale_std, or no IMU) and has not published, take
         it from their fit over the climb when that is surer (climb_scale.py)."""
         f, cfg = self.filter, self.cfg
-        if self._baro is None or abs(t - self._baro[0]) > RANGE_FRESH_S:
-            return
+        if self._baro is None or abs(t - self._baro[0]) > RANGE_FRESH_S or f.published:
+            return  # once published the fit is not used: pairing on would grow without bound
         f.climb.add(float((f.R_nom @ (frame.p_w - f.p_w0))[2]), *self._baro)
         std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
         if att is None or f.published or (std <= cfg.coarse_scale_std and self._imu_fresh(t)):
