@@ -112,25 +112,17 @@ def _quiet() -> None:
     setup_logging("error")
 
 
-def _size(text: str | None) -> tuple[int, int] | None:
-    if text is None:
-        return None
-    try:
-        width, height = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise InputError(f"--size must be WIDTHxHEIGHT, got '{text}'") from None
-    return width, height
-
-
 def _soak(args: argparse.Namespace) -> int:
     from daemon.run_command import setup_logging
     from sim.faults.soak import soak
+    from sim.render_command import parse_size
     from sim.synth.flight import synthetic_sequence
 
     if args.minutes <= 0:
         raise InputError("--minutes must be positive")
     setup_logging("warning")
-    sequence = synthetic_sequence(args.preset, size=_size(args.size), seed=args.seed)
+    size = parse_size(args.size) if args.size else None
+    sequence = synthetic_sequence(args.preset, size=size, seed=args.seed)
     result = soak(sequence, args.minutes, trace_from_min=args.tracemalloc_from)
     ten = result.rss_at(min(10.0, args.minutes))
     end = result.samples[-1][1] if result.samples else float("nan")
