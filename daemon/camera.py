@@ -254,7 +254,7 @@ class CaptureThread(threading.Thread):
         self.error: BaseException | None = None
         self.busy: tuple[str, float] | None = None  # ("open" or "read", monotonic start)
         self.last_frame_t: float | None = None  # monotonic time of the last good frame
-        self.last_read_t: float | None = None  # ... of the last read that returned at all
+        self.last_read_t: float | None = None  # ... of the last read that gave a frame, bad or not
 
     def run(self) -> None:
         try:
@@ -293,7 +293,6 @@ class CaptureThread(threading.Thread):
             return fn()
         finally:
             self.busy = None
-            self.last_read_t = time.monotonic() if what == "read" else self.last_read_t
 
     def _pump(self) -> bool:
         """Move frames into the slot until stop, failure (False) or a finite end (True)."""
@@ -305,10 +304,10 @@ class CaptureThread(threading.Thread):
                 self.on_state(Health.NO_CAMERA)
                 return False
             except FrameError as exc:
-                self.check.bad(exc.kind, exc.detail)
+                self._bad(exc.kind, exc.detail)
                 continue
             except Exception as exc:  # a decoder or driver error on one frame
-                self.check.bad(BadFrame.UNREADABLE, f"{type(exc).__name__}: {exc}")
+                self._bad(BadFrame.UNREADABLE, f"{type(exc).__name__}: {exc}")
                 continue
             if item is None:
                 if self.source.finite:
@@ -318,6 +317,7 @@ class CaptureThread(threading.Thread):
                     return True
                 return False
             t_source, t_capture, image = item
+            self.last_read_t = time.monotonic()
             if not self.check.check(t_source, image):
                 continue
             if not self.slot.put(Frame(self.frames, t_source, t_capture, image),
@@ -326,6 +326,11 @@ class CaptureThread(threading.Thread):
             self.last_frame_t = time.monotonic()
             self.frames += 1
         return True
+
+    def _bad(self, kind: BadFrame, detail: str) -> None:
+        """A read that returned no usable frame (the source is there: not a lost camera)."""
+        self.last_read_t = time.monotonic()
+        self.check.bad(kind, detail)
 
     def stop(self) -> None:
         """Ask the thread to finish; the slot is closed so a waiting put returns."""

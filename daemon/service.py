@@ -232,8 +232,9 @@ class Service:
         sent at once; stop the watchdog and the service (exit code 1: systemd restarts it)."""
         if self.fault is not None:
             return
-        self._set_state(fault.health)
         self.fault = fault
+        log.info("state: %s -> %s", self.state, fault.health)
+        self.state = fault.health
         log.error("%s: stopping the watchdog and exiting (code 1) for systemd to restart the "
                   "service", fault.reason)
         report = fault.health.report
