@@ -16,7 +16,10 @@ import numpy as np
 from sdvl.errors import InputError
 
 log = logging.getLogger("sdvl.camera")
-SIZE_VERDICT_FRAMES = 30  # frames of one unusable size before it is the config's fault
+# frames of one size the calibration does not fit, over this long, before any usable one: the
+# configuration's fault (a camera may send a few frames of its default size when it starts)
+SIZE_VERDICT_FRAMES = 30
+SIZE_VERDICT_S = 2.0
 
 
 class BadFrame(enum.StrEnum):
@@ -52,8 +55,9 @@ class FrameCheck:
 
     The first usable frame fixes the size (the tracker is built for it); `size_ok(w, h)` raises
     InputError for a size the calibration does not fit. Frames of such a size are skipped, but
-    when the first SIZE_VERDICT_FRAMES frames all have one such size it is the configuration's
-    fault and the InputError is raised (exit code 2, before the service reports ready)."""
+    when SIZE_VERDICT_FRAMES frames over SIZE_VERDICT_S seconds have one such size before any
+    usable frame, it is the configuration's fault and the InputError is raised (exit code 2,
+    before the service reports ready)."""
 
     def __init__(self, size_ok: Callable[[int, int], None] | None = None,
                  on_first_bad: Callable[[BadFrame], None] = lambda kind: None):
@@ -62,7 +66,7 @@ class FrameCheck:
         self.size: tuple[int, int] | None = None
         self.counts: Counter[BadFrame] = Counter()
         self._last_t = -math.inf
-        self._unfit: Counter[tuple[int, int]] = Counter()
+        self._unfit: dict[tuple[int, int], list[float]] = {}  # size -> [first t, count]
 
     def bad(self, kind: BadFrame, detail: str) -> None:
         """Count a skipped frame; the first of each kind is logged with its detail."""
@@ -79,7 +83,7 @@ class FrameCheck:
             self.bad(BadFrame.EMPTY, f"got {getattr(image, 'shape', type(image).__name__)}")
             return False
         height, width = image.shape
-        if self.size is None and not self._fits(width, height):
+        if self.size is None and not self._fits(width, height, t_source):
             return False
         if self.size is not None and (width, height) != self.size:
             self.bad(BadFrame.WRONG_SIZE, f"{width}x{height}, tracking {self.size[0]}x"
@@ -91,7 +95,7 @@ class FrameCheck:
         self.size, self._last_t = (width, height), t_source
         return True
 
-    def _fits(self, width: int, height: int) -> bool:
+    def _fits(self, width: int, height: int, t_source: float) -> bool:
         """Whether the first frame's size suits the calibration (see the class doc)."""
         if self.size_ok is None:
             return True
@@ -99,8 +103,9 @@ class FrameCheck:
             self.size_ok(width, height)
             return True
         except InputError as exc:
-            self._unfit[(width, height)] += 1
-            if self._unfit[(width, height)] >= SIZE_VERDICT_FRAMES:
+            seen = self._unfit.setdefault((width, height), [t_source, 0])
+            seen[1] += 1
+            if seen[1] >= SIZE_VERDICT_FRAMES and t_source - seen[0] >= SIZE_VERDICT_S:
                 raise
             self.bad(BadFrame.WRONG_SIZE, str(exc))
             return False

@@ -94,10 +94,13 @@ def test_frame_check_kinds_and_a_calibration_that_does_not_fit():
     assert not check.check(0.4, None)
     assert check.check(0.5, good)
     assert check.counts == {BadFrame.WRONG_SIZE: 1, BadFrame.BAD_STAMP: 2, BadFrame.EMPTY: 2}
+    starting = FrameCheck(fits_64x48)  # a camera's first second at its default size: skipped
+    assert not any(starting.check(k / 30, np.zeros((24, 32), np.uint8)) for k in range(45))
+    assert starting.check(1.5, good)
     never = FrameCheck(fits_64x48)
     with pytest.raises(InputError, match="calibration is 64x48"):
         for k in range(100):  # every frame of another size: the configuration is wrong
-            never.check(k * 0.1, np.zeros((24, 32), np.uint8))
+            never.check(k / 30, np.zeros((24, 32), np.uint8))
 
 
 def test_folder_renamed_mid_flight_says_frames_unusable_then_recovers(tmp_path):

@@ -119,7 +119,7 @@ def test_calibration_that_does_not_fit_the_frames_is_exit_2_before_ready(tmp_pat
     folder = tmp_path / "rec"
     folder.mkdir()
     rng = np.random.default_rng(1)
-    for k in range(40):
+    for k in range(90):  # 3 s at 30 fps: long enough to be the calibration's fault
         cv2.imwrite(str(folder / f"{k:03d}.png"), rng.integers(0, 255, (48, 64), np.uint8))
     save_camera(CameraModel(640, 400, 500.0, 500.0, 320.0, 200.0), tmp_path / "camera.yaml")
     notify = receiver(tmp_path / "notify")
