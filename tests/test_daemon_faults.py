@@ -264,3 +264,22 @@ def test_an_estimate_with_nan_is_never_sent():
         run.stop()
     odometry = [r.msg for r in sim.messages("ODOMETRY")]
     assert odometry and all(np.isfinite([m.x, m.y, m.z]).all() for m in odometry)
+
+
+def test_a_second_system_on_the_link_is_ignored_by_the_running_service():
+    """Attitude from system 2 (roll 0.5 rad) injected on the link of an autopilot that sends
+    none: the service stays bound to system 1 and its estimator never sees that attitude."""
+    intruder = mavlink2.MAVLink(None, srcSystem=2, srcComponent=1)
+    with SimAutopilot(SimOptions(heartbeat_hz=5, streams={})) as sim:
+        run = RunningService(service_config(sim.url))
+        assert wait_for(lambda: run.service.watch.bound, 5.0)
+        for k in range(40):
+            msg = intruder.attitude_encode(1000 + 20 * k, 0.5, 0.0, 1.0, 0.0, 0.0, 0.0)
+            sim.inject(bytes(msg.pack(intruder)))
+            time.sleep(0.01)
+        time.sleep(0.2)
+        run.stop()
+    watch = run.service.watch
+    assert (watch.system_id, watch.component_id) == (1, 1)
+    assert watch.ignored_sources[(2, 1)] == 40
+    assert np.allclose(run.service.estimator._level, np.eye(3))  # still unlevelled
