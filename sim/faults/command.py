@@ -99,7 +99,7 @@ def _fuzz(args: argparse.Namespace) -> int:
     if args.packets <= 0:
         raise InputError("--packets must be positive")
     _quiet()
-    total = fuzz_packets(args.packets, args.seed, filtered=not args.unfiltered)
+    total = fuzz_packets(args.packets, args.seed, filtered=not args.unfiltered, progress=True)
     _print_scores([total], args.json)
     return 0
 

@@ -5,6 +5,7 @@ wanted number of packets was changed, the scores summed over the flights."""
 from __future__ import annotations
 
 import dataclasses
+import sys
 
 import numpy as np
 
@@ -39,12 +40,18 @@ def total(scores: list[FaultScore], name: str) -> FaultScore:
 
 
 def fuzz_packets(packets: int, seed: int, filtered: bool = True,
-                 flight: fusion_sim.Flight | None = None) -> FaultScore:
+                 flight: fusion_sim.Flight | None = None, progress: bool = False) -> FaultScore:
     """Fuzz flights seed, seed+1, ... until `packets` packets were fuzzed; the summed score
-    (`flight` replaces the simulated survey, e.g. a short one for tests)."""
+    (`flight` replaces the simulated survey, e.g. a short one for tests); `progress` prints a
+    line per flight on stderr."""
     scores: list[FaultScore] = []
     while sum(s.injected for s in scores) < packets:
         k = len(scores)
         scores.append(fuzz_flight(seed + k, SHARES[k % len(SHARES)], flight, filtered))
+        if progress:
+            s = scores[-1]
+            print(f"fuzz flight {k + 1}: {sum(x.injected for x in scores)}/{packets} packets; "
+                  f"this one: crashes {s.crashes}, beyond 3 sigma {s.beyond_3_sigma}/"
+                  f"{s.published}, worst {s.worst_error_m:.1f} m", file=sys.stderr, flush=True)
     return dataclasses.replace(total(scores, f"fuzz {len(scores)} flights"),
                                ignored={"flights": len(scores)})
