@@ -14,6 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from daemon.sdnotify import Notifier
 from daemon.signals import EarlySignals, Stopped
 
 if TYPE_CHECKING:  # the real imports are slow and come after the signal handlers
@@ -21,7 +22,6 @@ if TYPE_CHECKING:  # the real imports are slow and come after the signal handler
     from daemon.camera import FrameSource
     from daemon.config import CameraConfig, Config
     from daemon.frames import Frame
-    from daemon.sdnotify import Notifier
     from daemon.service import Service
 
 log = logging.getLogger("sdvl.service")
@@ -133,11 +133,9 @@ async def serve(service: Service, signals: EarlySignals | None = None,
 
 def run(args: argparse.Namespace) -> int:
     """Entry point of `sdvl run`."""
+    notifier = Notifier()
     signals = EarlySignals()
     signals.install()
-    from daemon.sdnotify import Notifier
-
-    notifier = Notifier()
     try:
         return _start(args, signals, notifier)
     except Stopped:

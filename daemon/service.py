@@ -42,8 +42,8 @@ from sdvl.errors import InputError
 log = logging.getLogger("sdvl.service")
 HOUSEKEEPING_S = 0.05
 THREAD_JOIN_S = 0.7
-# READY waits this long for the first frame, so a calibration that does not fit the frames is
-# reported (exit code 2) before systemd is told the service runs; well under TimeoutStartSec
+# READY waits this long for a first usable frame, so a calibration that does not fit the frames
+# is reported (exit code 2) before systemd is told the service runs; well under TimeoutStartSec
 FIRST_FRAME_WAIT_S = 20.0
 # A waiting thread gets the GIL within this time (Python's default is 5 ms): a frame or an
 # estimate handed between capture, tracking and the loop must not wait for the mapping thread.
@@ -158,10 +158,11 @@ class Service:
                                        on_end=lambda: self._from_thread(self._stop.set))
 
     async def _first_frame(self) -> None:
-        """Wait until the tracker was built for the first frame (its size checked), the
-        service stops, or FIRST_FRAME_WAIT_S passed (a camera still away: reported, retried)."""
+        """Wait until the first frame passed its checks (its size against the calibration),
+        the service stops, or FIRST_FRAME_WAIT_S passed (a camera still away: reported and
+        retried while the service runs)."""
         deadline = time.monotonic() + FIRST_FRAME_WAIT_S
-        while (not self.tracking.ready.is_set() and not self._stop.is_set()
+        while (self.capture.last_frame_t is None and not self._stop.is_set()
                and time.monotonic() < deadline):
             await asyncio.sleep(HOUSEKEEPING_S)
 

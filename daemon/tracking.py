@@ -78,7 +78,6 @@ class TrackingThread(threading.Thread):
         self.slot, self.make_tracker, self.estimator = slot, make_tracker, estimator
         self.deliver, self.on_end = deliver, on_end
         self.stopping = threading.Event()
-        self.ready = threading.Event()  # the tracker was built (or building it failed)
         self.gate = HandoffGate()
         self.tracker = None
         self.error: BaseException | None = None
@@ -96,7 +95,6 @@ class TrackingThread(threading.Thread):
             log.exception("tracking failed")
             self.error = exc
         finally:
-            self.ready.set()
             self.gate.done(math.inf)  # no more handoffs: mapping finishes its queue unheld
             self._close_tracker()
             self.on_end()
@@ -112,7 +110,6 @@ class TrackingThread(threading.Thread):
                 continue
             if self.tracker is None:
                 self.tracker = self.make_tracker(frame)
-                self.ready.set()
             tracked = self._track(frame)
             if tracked is not None:
                 self.deliver(tracked)
