@@ -36,6 +36,9 @@ class FrameSource(Protocol):
     camera: CameraModel | None  # intrinsics when the source knows them (datasets, test pattern)
     live: bool  # True: drop the oldest frame when tracking is behind; False: wait for it
     finite: bool  # True: the end of the stream ends the service; False: reopen and go on
+    # True: a device whose open or read can hang (watched by camera.stall_timeout_s); sources
+    # without the attribute are files or generators, which are slow at worst (a renderer)
+    blocks: bool
 
     def open(self) -> None:
         """Open the device or file; OSError when it is not there (the caller retries)."""
@@ -85,6 +88,7 @@ class OpenCVSource:
         self.spec, self.size, self.fps = spec, (width, height), fps
         self.is_file = Path(spec).is_file() and not spec.startswith("/dev/")
         self.finite = self.is_file
+        self.blocks = not self.is_file
         self.live = realtime or not self.is_file
         self._pacer = Pacer() if self.is_file and realtime else None
         self._cap: cv2.VideoCapture | None = None
@@ -140,7 +144,7 @@ class SequenceSource:
     """Anything with `.frames()` yielding (t, grey image) and a `.camera` (e.g. a
     sim.sequence.Sequence): played at its timestamps or as fast as tracking takes frames."""
 
-    finite = True
+    finite, blocks = True, False
 
     def __init__(self, sequence: object, realtime: bool = True, name: str | None = None):
         self.sequence = sequence
@@ -199,7 +203,7 @@ class TestPatternSource:
     hardware, for bring-up, benchmarks and tests."""
 
     __test__ = False  # not a pytest class
-    live, finite = True, False
+    live, finite, blocks = True, False, False
 
     def __init__(self, width: int = 320, height: int = 240, fps: float = 30.0, seed: int = 7):
         rng = np.random.default_rng(seed)
@@ -253,6 +257,7 @@ class CaptureThread(threading.Thread):
         self.finished = False  # the finite source ended (not a failure)
         self.error: BaseException | None = None
         self.busy: tuple[str, float] | None = None  # ("open" or "read", monotonic start)
+        self.watch_stalls = getattr(source, "blocks", False)
         self.last_frame_t: float | None = None  # monotonic time of the last good frame
         self.last_read_t: float | None = None  # ... of the last read that gave a frame, bad or not
 
@@ -287,8 +292,9 @@ class CaptureThread(threading.Thread):
                 break
 
     def _call(self, what: str, fn: Callable[[], object]) -> object:
-        """fn() with `busy` saying what is in progress since when."""
-        self.busy = (what, time.monotonic())
+        """fn() with `busy` saying what is in progress since when (for a device that can
+        hang; a slow renderer or file is not a blocked camera)."""
+        self.busy = (what, time.monotonic()) if self.watch_stalls else None
         try:
             return fn()
         finally:

@@ -126,7 +126,7 @@ def test_folder_renamed_mid_flight_says_frames_unusable_then_recovers(tmp_path):
 class BlockedOpen:
     """A device whose open never returns (a camera that does not answer)."""
 
-    name, camera, live, finite = "/dev/video-blocked", None, True, False
+    name, camera, live, finite, blocks = "/dev/video-blocked", None, True, False, True
 
     def __init__(self) -> None:
         self.release = threading.Event()
@@ -139,6 +139,24 @@ class BlockedOpen:
 
     def close(self) -> None:
         """Nothing to release."""
+
+
+def test_slow_renderer_is_not_a_blocked_camera():
+    """A sequence source (a synthetic flight renders each frame in `read`, compiling its
+    kernels on the first) may be slow: only devices are watched for stalls."""
+
+    class SlowFirstFrame(TestPatternSource):
+        def read(self):
+            if self._index == 0:
+                time.sleep(1.0)
+            return super().read()
+
+    with SimAutopilot(SimOptions(heartbeat_hz=5)) as sim:
+        cfg = service_config(sim.url, camera={"stall_timeout_s": 0.3})
+        run = RunningService(cfg, source=SlowFirstFrame(64, 48, 30.0))
+        assert wait_for(lambda: run.service.stats.frames >= 10, 5.0)
+        run.stop()
+    assert run.exit_code == 0 and run.service.fault is None
 
 
 def test_blocked_camera_stops_the_watchdog_and_exits_1_saying_why(caplog):
