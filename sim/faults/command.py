@@ -133,12 +133,12 @@ def _soak(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary))
         return result.exit_code
-    print(f"soak {args.preset} {args.minutes:g} min: RSS {ten:.0f} MB at 10 min (or the end of "
-          f"a shorter run), {end:.0f} MB at the end ({100 * (end / ten - 1):+.1f}%)")
+    print(f"soak {args.preset}{' ' + args.size if args.size else ''} {args.minutes:g} min: "
+          f"RSS {ten:.0f} MB at 10 min (or the end of a shorter run), {end:.0f} MB at the end "
+          f"({100 * (end / ten - 1):+.1f}%)")
     print(f"  frames offered {result.frames_offered}, tracked {result.frames_tracked}, vision "
           f"messages sent {result.sent}, exit code {result.exit_code}")
-    print("  RSS (MB) by minute: " + ", ".join(
-        f"{m:.0f}: {r:.0f}" for m, r in result.samples if abs(m - round(m)) < 0.09))
+    print("  RSS (MB) by minute: " + ", ".join(f"{m}: {r:.0f}" for m, r in result.per_minute()))
     for line in result.top_growth:
         print("  grew " + line)
     return result.exit_code

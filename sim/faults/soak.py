@@ -1,5 +1,6 @@
 """`sdvl faults soak`: the whole service for a long time on a flight flown back and forth, with
-its resident memory sampled, to show whether anything grows.
+its resident memory sampled while it runs (minute 0: the service starts, after the tracker's
+warm-up), to show whether anything grows.
 
 A synthetic flight is rendered once to disk, then played forwards, backwards, forwards... (the
 path, images, IMU and autopilot sensors mirrored in time, so the drone never jumps and the
@@ -109,6 +110,13 @@ class SoakResult:
         """The sample nearest to `minute`."""
         return min(self.samples, key=lambda s: abs(s[0] - minute))[1]
 
+    def per_minute(self) -> list[tuple[int, float]]:
+        """The first sample at or after each whole minute."""
+        out: dict[int, float] = {}
+        for minute, rss in self.samples:
+            out.setdefault(int(minute), rss)
+        return sorted(out.items())
+
 
 class _Sampler(threading.Thread):
     def __init__(self, trace_from_min: float | None):
@@ -120,6 +128,7 @@ class _Sampler(threading.Thread):
         self.t0 = time.monotonic()
 
     def run(self) -> None:
+        self.t0 = time.monotonic()
         while not self.stopping.wait(SAMPLE_S):
             minute = (time.monotonic() - self.t0) / 60.0
             self.samples.append((minute, rss_mb()))
@@ -128,9 +137,11 @@ class _Sampler(threading.Thread):
                 self.first_snapshot = tracemalloc.take_snapshot()
 
 
-def _serve_service(sequence: Sequence, config: Config, frames: int) -> tuple[int, Service]:
+def _serve_service(sequence: Sequence, config: Config, frames: int,
+                   sampler: _Sampler) -> tuple[int, Service]:
     """The service on the first `frames` frames in real time against the simulated autopilot
-    flying the sequence, keeping nothing per frame (unlike the replay's recorder)."""
+    flying the sequence, keeping nothing per frame (unlike the replay's recorder); `sampler`
+    runs while the service does (after the tracker's warm-up)."""
     config = replace(drone_config(config, sequence),
                      camera={"source": "testpattern", "calibration": ""})
     make_tracker = tracker_factory(config, sequence.camera)
@@ -143,7 +154,10 @@ def _serve_service(sequence: Sequence, config: Config, frames: int) -> tuple[int
         config = replace(config, mavlink={"link": autopilot.url})
         source = ReplaySource(FirstFrames(sequence, frames), True, 0.0, autopilot.frame_released)
         service = Service(config, source, make_tracker)
+        sampler.start()
         code = asyncio.run(service.run())
+        sampler.stopping.set()
+        sampler.join()
     finally:
         autopilot.finish()
     return code, service
@@ -162,10 +176,7 @@ def soak(sequence: Sequence, minutes: float, config: Config | None = None,
         if trace_from_min is not None:
             tracemalloc.start(10)
         sampler = _Sampler(trace_from_min)
-        sampler.start()
-        code, service = _serve_service(looped, config or Config(), frames)
-        sampler.stopping.set()
-        sampler.join()
+        code, service = _serve_service(looped, config or Config(), frames, sampler)
     growth = []
     if sampler.first_snapshot is not None:
         stats = tracemalloc.take_snapshot().compare_to(sampler.first_snapshot, "traceback")
