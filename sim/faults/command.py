@@ -19,7 +19,7 @@ from sdvl.errors import InputError
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of `sdvl faults`."""
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
-    from sim.faults.scenarios import SCENARIOS
+    from sim.faults.scenarios import FUZZ_KINDS, SCENARIOS
 
     scenarios = sub.add_parser("scenarios", help="link fault scenarios: crashes, NaN, stale, "
                                                  "errors beyond 3 sigma, recovery")
@@ -28,6 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     fuzz = sub.add_parser("fuzz", help="seeded fuzzed/mutated packets, scores summed")
     fuzz.add_argument("--packets", type=int, default=100_000,
                       help="fuzzed or mutated packets to send (default 100000)")
+    fuzz.add_argument("--by-kind", action="store_true",
+                      help="a row per kind of fuzz (" + ", ".join(FUZZ_KINDS) + "), each with "
+                           "--packets packets: which of them the fusion does not survive")
     for p in (scenarios, fuzz):
         p.add_argument("--seed", type=int, default=1)
         p.add_argument("--unfiltered", action="store_true",
@@ -95,12 +98,15 @@ def _scenarios(args: argparse.Namespace) -> int:
 
 def _fuzz(args: argparse.Namespace) -> int:
     from sim.faults.fuzz import fuzz_packets
+    from sim.faults.scenarios import FUZZ_KINDS
 
     if args.packets <= 0:
         raise InputError("--packets must be positive")
     _quiet()
-    total = fuzz_packets(args.packets, args.seed, filtered=not args.unfiltered, progress=True)
-    _print_scores([total], args.json)
+    kinds = [(kind,) for kind in FUZZ_KINDS] if args.by_kind else [FUZZ_KINDS]
+    scores = [fuzz_packets(args.packets, args.seed, filtered=not args.unfiltered,
+                           progress=True, kinds=k) for k in kinds]
+    _print_scores(scores, args.json)
     return 0
 
 

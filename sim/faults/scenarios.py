@@ -181,10 +181,10 @@ def reboot(flight, rng, window):
 FUZZ_KINDS = ("fields", "stamp", "sender", "duplicate", "drop", "swap", "garbage", "random")
 
 
-def fuzz(share: float) -> Callable:
-    """A seeded mix of every fault, on `share` of the messages in the window: fields changed,
-    stamps moved, another sender, duplicated, dropped, swapped with the next, garbage bytes,
-    a random message of a kind the fusion reads."""
+def fuzz(share: float, kinds: tuple[str, ...] = FUZZ_KINDS) -> Callable:
+    """A seeded mix of faults (`kinds`, default all), on `share` of the messages in the window:
+    fields changed, stamps moved, another sender, duplicated, dropped, swapped with the next,
+    garbage bytes, a random message of a kind the fusion reads."""
     def make(flight, rng, window):
         items = clean_items(flight)
         chosen = set(i for i in _during(items, window, None) if rng.random() < share)
@@ -194,7 +194,7 @@ def fuzz(share: float) -> Callable:
                 out.append(item)
                 continue
             injected += 1
-            out += _fuzzed(item, str(rng.choice(FUZZ_KINDS)), rng)
+            out += _fuzzed(item, str(rng.choice(kinds)), rng)
         for k in range(len(out) - 1):  # swapped arrivals: the later one first
             if out[k].swap:
                 out[k].arrival, out[k + 1].arrival = out[k + 1].arrival, out[k].arrival
