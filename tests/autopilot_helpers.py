@@ -41,6 +41,7 @@ class Companion:
     lever: np.ndarray = field(default_factory=lambda: np.zeros(3))  # camera in body FRD
 
     def send(self, now: float) -> None:
+        """The pose at `now` (which may be earlier than the link's clock: a late message)."""
         state = self.link.model.vehicle.state(self.link.model.uptime(now))
         turn = Rotation.from_euler("z", self.yaw_offset_deg, degrees=True)
         camera = state["position"] + state["rotation"].apply(self.lever)
@@ -48,7 +49,7 @@ class Companion:
         attitude = turn * state["rotation"]
         velocity_body = state["rotation"].inv().apply(state["velocity"])
         self.link.odometry(position, attitude, velocity_body, self.reset_counter,
-                           self.position_var)
+                           self.position_var, stamp_s=now)  # stamped at capture
 
     def fly(self, seconds: float, rate_hz: float = 30.0) -> None:
         self.link.advance(seconds, 1.0 / rate_hz, self.send)

@@ -134,6 +134,7 @@ class AutopilotModel(ABC):
         self.origin = None
         self.armed = False
         self._last_step = now
+        self.sensing.baro_ground = None  # the barometer calibrates again where it boots
         self.schedule = Schedule()
         rates = self.default_streams()
         if self.opt.streams is not None:  # requested streams replace the parameters' own
