@@ -43,7 +43,7 @@ FORCE_ARM_DISARM = 21196  # magic_force_arm_disarm_value
 NO_STREAM_OVERRIDE = 1 << 2  # MAVn_OPTIONS bit 2, "Ignore Streamrate"
 EKF_CHECK_PERIOD_S = 0.1
 EKF_CHECK_ITERATIONS = 10  # ekf_check.cpp EKF_CHECK_ITERATIONS_MAX: 1 s at 10 Hz
-FLYING_HEIGHT_M = 0.5  # above the boot height: not landed (MAVLink disarm refused)
+FLYING_HEIGHT_M = 0.5  # above the boot height: in the air (no disarm, no height datum reset)
 
 
 @dataclass(frozen=True)
@@ -339,7 +339,8 @@ class ArduCopterModel(AutopilotModel):
             return mavlink2.MAV_RESULT_FAILED
         home_set = self.origin is not None and self.position_ok(now)
         if not home_set:
-            self.ekf.reset_height_datum(self._last_baro, now)
+            on_ground = self._height_above_boot() < FLYING_HEIGHT_M
+            self.ekf.reset_height_datum(self._last_baro, now, on_ground)
         self.armed = True
         self.record.events.append(Event(now, EventKind.ARMED, self.mode.name))
         return mavlink2.MAV_RESULT_ACCEPTED

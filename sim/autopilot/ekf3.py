@@ -284,10 +284,10 @@ class Ekf3:
 
     # --- outputs ---------------------------------------------------------------------------
 
-    def reset_height_datum(self, baro_alt: float, now: float) -> None:
+    def reset_height_datum(self, baro_alt: float, now: float, on_ground: bool) -> None:
         """resetHeightDatum (on the ground, not with a rangefinder height): the barometer reads
         0 here from now on and the height state is 0."""
-        if not self.started or self._src("POSZ") == 2:
+        if not self.started or not on_ground or self._src("POSZ") == 2:
             return
         self.baro_offset = baro_alt
         step = self.filter.reset([2], [0.0], self.filter.variance(2, 0), 0)
