@@ -62,7 +62,7 @@ class StreamStatus:
 
     need: Need
     answer: Answer = Answer.PENDING
-    method: str = "SET_MESSAGE_INTERVAL"
+    method: str = "SET_MESSAGE_INTERVAL"  # how it was asked for in the end
     rate_hz: float = 0.0
 
     @property
@@ -241,10 +241,12 @@ class StreamKeeper:
         need, flavour = status.need, self.watch.flavour
         hints = stream_hints(flavour, need, self.params, self.usb)
         fix = " or ".join(map(str, hints)) if hints else generic_hint(flavour, need)
-        log.warning("%s (%s) arrives at %.1f Hz; the service needs %g Hz (asked for %g Hz with "
-                    "SET_MESSAGE_INTERVAL: %s; %s): set %s and reboot the autopilot",
-                    need.request, need.kind, status.rate_hz, need.min_hz, need.rate_hz,
-                    status.answer.value, status.method, fix)
+        asked = f"asked for {need.rate_hz:g} Hz with SET_MESSAGE_INTERVAL: {status.answer.value}"
+        if status.answer != Answer.ACCEPTED:
+            asked += f", then {status.method}"
+        log.warning("%s (%s) arrives at %.1f Hz, the service needs %g Hz (%s): set %s and reboot "
+                    "the autopilot", need.request, need.kind, status.rate_hz, need.min_hz, asked,
+                    fix)
         short = f"{hints[0].name}={hints[0].value:g}" if hints else fix.split(" ")[0]
         what = (f"no {need.request}" if status.rate_hz == 0
                 else f"{need.request} {status.rate_hz:.0f}Hz")
