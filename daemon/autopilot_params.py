@@ -103,10 +103,11 @@ def delay_finding(name: str, p: dict[str, float], ctx: CheckContext,
         return Finding(Severity.NOTE, name, p[name], "not checked: the latency was not "
                        "measured (give --config with the camera, or --latency-ms)")
     wanted = min(limit, max(0, round(ctx.delay_ms)))
+    measured = f"the delay measured on this link is {ctx.delay_ms:.0f} ms ({ctx.delay_basis})"
     if abs(p[name] - wanted) <= DELAY_TOLERANCE_MS:
-        return None
-    return Finding(Severity.WARNING, name, p[name], f"the delay measured on this link is "
-                   f"{ctx.delay_ms:.0f} ms ({ctx.delay_basis})", wanted)
+        return Finding(Severity.NOTE, name, p[name], f"right within {DELAY_TOLERANCE_MS} ms: "
+                       + measured)
+    return Finding(Severity.WARNING, name, p[name], measured, wanted)
 
 
 def finite(value: float | None) -> bool:
