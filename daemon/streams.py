@@ -13,6 +13,7 @@ PARAM_REQUEST_READ). A missing rangefinder is only logged (many vehicles have no
 from __future__ import annotations
 
 import logging
+import re
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -21,6 +22,7 @@ from enum import Enum
 from pymavlink.dialects.v20 import common as mavlink2
 
 from daemon.autopilot_params import from_wire
+from daemon.statustext import MAX_TEXT, PREFIX
 from daemon.stream_groups import (
     ARDUPILOT_GROUPS,
     DATA_STREAM_IDS,
@@ -132,13 +134,13 @@ class StreamKeeper:
             self._judge(now)
 
     def restart(self, now: float) -> None:
-        """Ask for every need again (on connect, after a reboot or a lost link)."""
+        """Ask for every need again (on connect, after a reboot or a lost link). A stream
+        already reported missing is not reported again until it has come back."""
         self.restarts += 1
         self._epoch_at, self._seen = now, (self.watch.reboots, self.watch.losses)
         needs = needs_for(self.watch.flavour)
         self.statuses = {n.kind: StreamStatus(n) for n in needs}
         self._queue, self._asking, self._asked_all_at = list(needs), None, None
-        self._reported.clear()
         log.info("asking the autopilot (%s) for %s", self.watch.flavour,
                  ", ".join(f"{n.request} at {n.rate_hz:g} Hz" for n in needs))
 
@@ -247,7 +249,19 @@ class StreamKeeper:
         log.warning("%s (%s) arrives at %.1f Hz, the service needs %g Hz (%s): set %s and reboot "
                     "the autopilot", need.request, need.kind, status.rate_hz, need.min_hz, asked,
                     fix)
-        short = f"{hints[0].name}={hints[0].value:g}" if hints else fix.split(" ")[0]
         what = (f"no {need.request}" if status.rate_hz == 0
                 else f"{need.request} {status.rate_hz:.0f}Hz")
-        self.report(f"{what}: set {short}", mavlink2.MAV_SEVERITY_WARNING)
+        head = f"{what}: set "
+        room = MAX_TEXT - len(PREFIX) - len(head)
+        self.report(head + _short_fix(hints, fix, room), mavlink2.MAV_SEVERITY_WARNING)
+
+
+def _short_fix(hints: list, fix: str, room: int) -> str:
+    """The fix in a STATUSTEXT's room: the parameter with its value, the candidates, or their
+    family (MAVn_EXTRA1) when they do not fit; the log line has the whole."""
+    if len(hints) == 1:
+        return f"{hints[0].name}={hints[0].value:g}"
+    if not hints:
+        return fix.split(" ")[0]
+    names = " or ".join(h.name for h in hints)
+    return names if len(names) <= room else re.sub(r"\d+", "n", hints[0].name, count=1)

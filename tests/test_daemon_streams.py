@@ -186,7 +186,8 @@ def test_missing_attitude_names_the_parameter_this_ardupilot_has(params, usb, na
     assert codec.of("PARAM_REQUEST_READ") and not reports  # reads first, then says
     answer_params(keeper, autopilot, params, t)
     run(keeper, autopilot, t, t + 2.0, accept_all, streams)
-    assert reports == [(f"no ATTITUDE: set {names[0]}=50", mavlink2.MAV_SEVERITY_WARNING)]
+    fix = f"{names[0]}=50" if len(names) == 1 else " or ".join(names)
+    assert reports == [(f"no ATTITUDE: set {fix}", mavlink2.MAV_SEVERITY_WARNING)]
     lines = [r.getMessage() for r in caplog.records]
     assert len(lines) == 1 and lines[0].startswith(
         "ATTITUDE (attitude) arrives at 0.0 Hz, the service needs 10 Hz (asked for 50 Hz with "
@@ -261,3 +262,15 @@ def test_the_service_asks_on_connect_and_after_a_reboot():
         finally:
             run.stop()
     assert asked(0.0)[:len(wanted)] == wanted
+
+
+def test_a_dead_stream_is_asked_for_again_but_reported_once():
+    codec, reports, autopilot = Codec(), [], Autopilot()
+    keeper = StreamKeeper(codec, Watch(), usb=False, report=lambda *a: reports.append(a))
+    t = run(keeper, autopilot, 0.0, 12.0, accept_all, {"ATTITUDE": 50, "RAW_IMU": 50,
+                                                       "SCALED_PRESSURE": 10})
+    t = run(keeper, autopilot, t, t + 4.0, accept_all, {"ATTITUDE": 50, "RAW_IMU": 50})
+    answer_params(keeper, autopilot, AP47, t)
+    run(keeper, autopilot, t, t + 40.0, accept_all, {"ATTITUDE": 50, "RAW_IMU": 50})
+    assert keeper.restarts >= 3  # the barometer is asked for again every REASK_MIN_S
+    assert reports == [("no SCALED_PRESSURE: set MAVn_RAW_SENS", mavlink2.MAV_SEVERITY_WARNING)]
