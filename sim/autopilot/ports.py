@@ -29,11 +29,14 @@ class UdpPort:
         return self.sock.fileno()
 
     def read(self) -> bytes:
-        try:
-            data, self.peer = self.sock.recvfrom(65536)
-        except BlockingIOError:
-            return b""
-        return data
+        """Every datagram waiting (MAVLink frames may be concatenated)."""
+        chunks = []
+        while True:
+            try:
+                data, self.peer = self.sock.recvfrom(65536)
+            except (BlockingIOError, OSError):
+                return b"".join(chunks)
+            chunks.append(data)
 
     def write(self, data: bytes) -> None:
         if self.peer is not None:
