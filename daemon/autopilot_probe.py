@@ -128,8 +128,9 @@ class Session:
         if not self.heard.is_set():
             raise NoAutopilotError(
                 f"no autopilot heartbeat on {self.link.spec} within {timeout_s:g} s: check the "
-                "link URL (udpin: when the autopilot sends to us), the baud rate and that the "
-                "port speaks MAVLink")
+                "link URL (udpin: when the autopilot sends to us), the baud rate, and that the "
+                "autopilot runs MAVLink on that port (ArduPilot SERIALn_PROTOCOL = 2, PX4 "
+                "MAV_n_CONFIG = that TELEM port, then reboot it)")
 
     def command(self, command: int, *params: float) -> None:
         """COMMAND_LONG to the autopilot (params 1..7, the rest 0)."""

@@ -10,11 +10,8 @@ from pymavlink.dialects.v20 import common as mavlink2
 from daemon import autopilot_probe, streams
 from daemon.autopilot_params import CheckContext, Finding, Severity, from_wire, wire_value
 from sdvl.cli import main
-from sim.autopilot import SimAutopilot, SimOptions
+from sim.autopilot import Release, SimAutopilot, SimOptions, configured_options
 from sim.autopilot.params import INT32
-
-# what the rules recommend for ArduPilot, on top of the simulated autopilot's table
-READY = {"VISO_TYPE": 2, "VISO_POS_M_NSE": 0.1, "VISO_DELAY_MS": 30}
 
 
 @pytest.fixture(autouse=True)
@@ -32,8 +29,8 @@ def check(sim: SimAutopilot, capsys, *extra: str) -> tuple[int, list[str]]:
 
 
 def test_ready_ardupilot_is_ok_and_everything_was_read_and_asked_for(capsys):
-    with SimAutopilot(SimOptions(heartbeat_hz=5, param_overrides=READY)) as sim:
-        code, out = check(sim, capsys, "--latency-ms", "30")
+    with SimAutopilot(configured_options(heartbeat_hz=5, streams={})) as sim:
+        code, out = check(sim, capsys, "--latency-ms", "40")
     assert code == 0, out
     assert out[0].startswith("OK: a flight on vision would work (ardupilot, system 1 on ")
     assert not any(line.startswith(("ERROR", "WARNING")) for line in out)
@@ -49,7 +46,8 @@ def test_ready_ardupilot_is_ok_and_everything_was_read_and_asked_for(capsys):
 def test_misconfigured_ardupilot_lists_every_setting_first_the_verdict(capsys):
     bad = {"VISO_TYPE": 0, "EK3_SRC1_POSXY": 3, "EK3_SRC1_YAW": 6, "VISO_SCALE": 2.0,
            "AHRS_EKF_TYPE": 2, "VISO_ORIENT": 25, "VISO_DELAY_MS": 10}
-    with SimAutopilot(SimOptions(port="tcp", heartbeat_hz=5, param_overrides=bad)) as sim:
+    with SimAutopilot(configured_options(port="tcp", heartbeat_hz=5,
+                                         param_overrides=bad)) as sim:
         code, out = check(sim, capsys, "--latency-ms", "62")
     assert code == 1
     assert out[0].startswith("NOT READY: 6 problems would stop a flight on vision (ardupilot")
@@ -65,8 +63,7 @@ def test_misconfigured_ardupilot_lists_every_setting_first_the_verdict(capsys):
 
 
 def test_px4_int_parameters_are_decoded_and_yaw_fusion_refused(capsys):
-    with SimAutopilot(SimOptions(flavour="px4", port="pty", heartbeat_hz=5,
-                                 param_overrides={"EKF2_EV_CTRL": 15})) as sim:
+    with SimAutopilot(configured_options(flavour="px4", port="pty", heartbeat_hz=5)) as sim:
         code, out = check(sim, capsys, "--measure-s", "0")
     assert code == 1
     assert out[0].startswith("NOT READY: 1 problem would stop a flight on vision (px4")
@@ -76,10 +73,47 @@ def test_px4_int_parameters_are_decoded_and_yaw_fusion_refused(capsys):
 
 
 def test_mavlink1_port_is_not_ready(capsys):
-    with SimAutopilot(SimOptions(mavlink1=True, heartbeat_hz=5, param_overrides=READY)) as sim:
-        code, out = check(sim, capsys, "--latency-ms", "30")
+    with SimAutopilot(configured_options(mavlink1=True, heartbeat_hz=5)) as sim:
+        code, out = check(sim, capsys, "--latency-ms", "40")
     assert code == 1
     assert any("still sends MAVLink 1 after hearing MAVLink 2" in o for o in out)
+
+
+@pytest.mark.parametrize("release", [Release.MASTER_2025, Release.COPTER_4_5])
+def test_fresh_ardupilot_lists_every_setting_and_apply_reboot_makes_it_ok(capsys, release):
+    """A fresh ArduCopter of either parameter generation: NOT READY with every setting; after
+    --apply --reboot the same check says OK."""
+    with SimAutopilot(SimOptions(port="tcp", release=release, reboot_downtime_s=2.0)) as sim:
+        code, out = check(sim, capsys, "--latency-ms", "35", "--apply", "--reboot")
+    assert code == 0, out
+    first = out.index("after the reboot:")
+    assert out[0].startswith("NOT READY: 4 problems")
+    for name, value in (("VISO_TYPE", 2), ("EK3_SRC1_POSXY", 6), ("EK3_SRC1_VELXY", 6),
+                        ("EK3_SRC1_VELZ", 6), ("VISO_POS_M_NSE", 0.1), ("VISO_DELAY_MS", 35)):
+        assert f"set {name} = {value:g}, read back {value:g}" in out[:first]
+        assert sim.params.get(name) == pytest.approx(value)
+    gps = "GPS1_TYPE" if release is Release.MASTER_2025 else "GPS_TYPE"
+    assert any(line.startswith(f"NOTE    {gps} = 1: could not tell") for line in out)
+    assert out[first + 1].startswith("OK: a flight on vision would work (ardupilot")
+    assert sim.messages("COMMAND_LONG") and any(
+        r.msg.command == mavlink2.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN and r.msg.param1 == 1
+        for r in sim.messages("COMMAND_LONG"))
+
+
+def test_px4_apply_and_reboot(capsys):
+    with SimAutopilot(configured_options(flavour="px4", port="tcp",
+                                         reboot_downtime_s=2.0)) as sim:
+        code, out = check(sim, capsys, "--latency-ms", "35", "--apply", "--reboot")
+    assert code == 0, out
+    assert "set EKF2_EV_CTRL = 7, read back 7" in out
+    assert sim.params.get("EKF2_EV_CTRL") == 7
+
+
+def test_fresh_px4_companion_port_is_silent_exit_3(capsys):
+    with SimAutopilot(SimOptions(flavour="px4")) as sim:
+        code = main(["check-autopilot", "--link", sim.url, "--timeout", "2"])
+    err = capsys.readouterr().err
+    assert code == 3 and "MAV_n_CONFIG" in err
 
 
 def test_no_autopilot_is_one_line_and_exit_3(capsys):
