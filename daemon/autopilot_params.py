@@ -81,6 +81,7 @@ class CheckContext:
     measured on the link. None: not known."""
 
     output: str = "odometry"
+    vision_rate_hz: float = 30.0  # vision messages per second: the camera's rate, at most 50
     fusion: bool = True
     good_std_m: float = 0.05  # position std the service sends when tracking well
     delay_ms: float | None = None  # the delay parameter's right value, measured

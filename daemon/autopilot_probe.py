@@ -47,6 +47,7 @@ class Probe:
     system_id: int
     link: str
     usb: bool
+    baud: int  # 0: not a serial link
     params: dict[str, float]
     params_complete: bool
     mavlink1: bool
@@ -151,7 +152,8 @@ class Session:
         prearm = await self._prearm()
         values = await params
         return Probe(self.watch.flavour, self.watch.system_id, str(self.link.spec),
-                     self.link.spec.usb, values, self.params.complete, self.mavlink1_late,
+                     self.link.spec.usb, self.link.spec.baud, values, self.params.complete,
+                     self.mavlink1_late,
                      unasked, streams, list(self.rtt_s), self.gps_fix_type, prearm)
 
     async def _ping(self, seconds: float) -> None:
@@ -172,14 +174,13 @@ class Session:
         self.keeper.tick(time.monotonic())
 
     async def _prearm(self) -> list[str] | None:
-        """The autopilot's pre-arm failures, run on request; None when it did not run them."""
-        start = time.monotonic()
+        """The autopilot's pre-arm failures, run on request, with any it sent on its own while
+        we listened; None when it ran none and said none."""
         self.command(MAV_CMD_RUN_PREARM_CHECKS)
         await asyncio.sleep(PREARM_WAIT_S)
-        if self.acks.get(MAV_CMD_RUN_PREARM_CHECKS) != mavlink2.MAV_RESULT_ACCEPTED:
-            return None
-        texts = [text for t, text in self.texts if t >= start]
-        return list(dict.fromkeys(t for t in texts if is_prearm_text(t)))
+        texts = list(dict.fromkeys(text for _, text in self.texts if is_prearm_text(text)))
+        ran = self.acks.get(MAV_CMD_RUN_PREARM_CHECKS) == mavlink2.MAV_RESULT_ACCEPTED
+        return texts if ran or texts else None
 
     async def reboot(self, timeout_s: float) -> bool:
         """MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN; True once the autopilot accepted it."""

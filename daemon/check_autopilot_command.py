@@ -69,6 +69,7 @@ def context(args: argparse.Namespace, cfg: Config | None) -> CheckContext:
     fusion = cfg.fusion.enabled
     return CheckContext(
         output=args.output or cfg.mavlink.output, fusion=fusion,
+        vision_rate_hz=min(cfg.camera.fps, cfg.mavlink.max_rate_hz),
         good_std_m=cfg.fusion.quality_good_std_m if fusion else cfg.mavlink.position_std_m,
         origin_enabled=cfg.origin.enabled if args.config else None)
 
@@ -97,7 +98,7 @@ def judge(probe: Probe, ctx: CheckContext, latency: tuple[list[float], str]) -> 
         ms, basis = delay(samples, probe.rtt_s, source)
         ctx = dataclasses.replace(ctx, delay_ms=ms, delay_basis=basis)
     rules = ardupilot_findings if probe.flavour == "ardupilot" else px4_findings
-    findings = [*rules(probe.params, ctx), *probe_findings(probe)]
+    findings = [*rules(probe.params, ctx), *probe_findings(probe, ctx)]
     if not probe.params_complete:
         findings.append(Finding(Severity.NOTE, "parameters", None, f"only {len(probe.params)} "
                                 "parameters arrived: those not read count as absent",

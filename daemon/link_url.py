@@ -23,6 +23,7 @@ SER_TELn_BAUD (PX4); over USB the rate is ignored but still written.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -64,10 +65,9 @@ class LinkSpec:
 
     @property
     def usb(self) -> bool:
-        """A USB CDC device (/dev/ttyACM*, by-id names of USB devices): the autopilot's USB
-        port, which ArduPilot calls SERIAL0."""
-        return self.kind == LinkKind.SERIAL and ("ttyACM" in self.device
-                                                 or "/serial/by-id/usb-" in self.device)
+        """The autopilot's own USB port (ArduPilot's SERIAL0): a USB CDC ACM device, also when
+        named through a /dev/serial/by-id link (a USB-serial adapter is a ttyUSB, a UART)."""
+        return self.kind == LinkKind.SERIAL and "ttyACM" in os.path.realpath(self.device)
 
 
 def _fail(url: str, why: str) -> InputError:

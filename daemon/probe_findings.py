@@ -1,9 +1,12 @@
-"""Findings from what check-autopilot heard on the link: the streams the service needs, the
-MAVLink version of the port and the autopilot's own pre-arm failures."""
+"""Findings from what check-autopilot heard on the link: the streams the service needs, whether
+a serial link's baud rate carries them and our vision messages, the MAVLink version of the port
+and the autopilot's own pre-arm failures."""
 
 from __future__ import annotations
 
-from daemon.autopilot_params import Finding, Severity
+from pymavlink.dialects.v20 import common as mavlink2
+
+from daemon.autopilot_params import CheckContext, Finding, Severity
 from daemon.autopilot_probe import Probe
 from daemon.stream_groups import (
     MAVLINK_PROTOCOLS,
@@ -20,11 +23,41 @@ SCALE_SOURCES = ("IMU", "barometer", "downward rangefinder")
 # while check-autopilot holds the port)
 NEEDS_VISION = ("visodom", "position estimate", "ekf", "ahrs")
 ERROR, WARNING, NOTE = Severity.ERROR, Severity.WARNING, Severity.NOTE
+FRAME_OVERHEAD = 12  # MAVLink 2 header and checksum, unsigned
+BITS_PER_BYTE = 10  # a UART byte with start and stop bits
+BUSY = 0.7  # of a link's capacity: beyond this, queues grow at every burst
+VISION_MESSAGES = {"odometry": ("ODOMETRY",),
+                   "vision_position": ("VISION_POSITION_ESTIMATE", "VISION_SPEED_ESTIMATE"),
+                   "both": ("ODOMETRY", "VISION_POSITION_ESTIMATE", "VISION_SPEED_ESTIMATE")}
 
 
-def probe_findings(probe: Probe) -> list[Finding]:
-    """Streams, MAVLink version and pre-arm findings."""
-    return [*_streams(probe), *_mavlink_version(probe), *_prearm(probe)]
+def probe_findings(probe: Probe, ctx: CheckContext) -> list[Finding]:
+    """Streams, link capacity, MAVLink version and pre-arm findings."""
+    return [*_streams(probe), *_link_capacity(probe, ctx), *_mavlink_version(probe),
+            *_prearm(probe)]
+
+
+def frame_bytes(message: str) -> int:
+    """A MAVLink 2 frame of `message` with every field filled."""
+    return getattr(mavlink2, f"MAVLink_{message.lower()}_message").unpacker.size + FRAME_OVERHEAD
+
+
+def _link_capacity(probe: Probe, ctx: CheckContext) -> list[Finding]:
+    """A UART carries baud/10 bytes a second each way: our vision messages at the camera's rate
+    one way, the streams the service asks for the other."""
+    if not probe.baud or probe.usb:
+        return []
+    out_bps = ctx.vision_rate_hz * sum(map(frame_bytes, VISION_MESSAGES[ctx.output]))
+    in_bps = sum(s.need.rate_hz * frame_bytes(s.need.request) for s in probe.streams)
+    load = max(out_bps, in_bps) / (probe.baud / BITS_PER_BYTE)
+    if load <= BUSY:
+        return []
+    return [Finding(ERROR if load > 1 else WARNING, "baud rate", None,
+                    f"{probe.baud} baud carries {probe.baud // BITS_PER_BYTE} bytes/s; the "
+                    f"vision messages need {out_bps:.0f} and the streams {in_bps:.0f} "
+                    f"({load:.0%}): set the autopilot port's baud rate (ArduPilot SERIALn_BAUD "
+                    "921, PX4 SER_TELn_BAUD 921600) and mavlink.link's to 921600",
+                    is_param=False)]
 
 
 def _rates(probe: Probe, unasked: bool) -> str:

@@ -197,7 +197,7 @@ def statuses(flavour: str, rates: dict[str, float]) -> list[StreamStatus]:
 def probe(rates: dict[str, float], params: dict, unasked=None, **kw) -> Probe:
     flavour = kw.pop("flavour", "ardupilot")
     unasked = unasked if unasked is not None else {n.kind: 0.0 for n in needs_for(flavour)}
-    fields = {"flavour": flavour, "system_id": 1, "link": "tcp:x:1", "usb": False,
+    fields = {"flavour": flavour, "system_id": 1, "link": "tcp:x:1", "usb": False, "baud": 0,
               "params": params, "params_complete": True, "mavlink1": False,
               "unasked": unasked, "streams": statuses(flavour, rates), "rtt_s": [],
               "gps_fix_type": None, "prearm": []}
@@ -211,36 +211,37 @@ PORTS = {"MAV1_EXTRA1": 0, "MAV2_EXTRA1": 4, "MAV3_EXTRA1": 0, "SERIAL0_PROTOCOL
 
 def test_missing_attitude_names_the_port_by_what_was_heard():
     """MAV2 streams EXTRA1 at 4 Hz (the GCS port); nothing was heard unasked here: MAV3."""
-    found = by_name(probe_findings(probe({**ALL, "attitude": 0}, PORTS)))
+    found = by_name(probe_findings(probe({**ALL, "attitude": 0}, PORTS), CTX))
     f = found["MAV3_EXTRA1"]
     assert (f.severity, f.value, f.set_to) == (Severity.ERROR, 0, 50)
     assert "never publishes" in f.message
-    both = by_name(probe_findings(probe({**ALL, "attitude": 0}, {**PORTS, "MAV2_EXTRA1": 0})))
+    both = by_name(probe_findings(probe({**ALL, "attitude": 0}, {**PORTS, "MAV2_EXTRA1": 0}), CTX))
     assert "MAV2_EXTRA1 = 50" in both["ATTITUDE"].message
     assert "MAV3_EXTRA1 = 50" in both["ATTITUDE"].message
 
 
 def test_scale_sources_and_optional_streams():
-    found = by_name(probe_findings(probe({"attitude": 50}, PORTS)))
+    found = by_name(probe_findings(probe({"attitude": 50}, PORTS), CTX))
     assert found["scale"].severity == Severity.ERROR
     assert found["DISTANCE_SENSOR"].severity == Severity.NOTE
     assert found["LOCAL_POSITION_NED"].severity == Severity.NOTE
-    imu_only = by_name(probe_findings(probe({**ALL, "barometer": 0}, PORTS)))
+    imu_only = by_name(probe_findings(probe({**ALL, "barometer": 0}, PORTS), CTX))
     assert imu_only["SCALED_PRESSURE"].severity == Severity.WARNING
     assert "MAV3_RAW_SENS = 10" in imu_only["SCALED_PRESSURE"].message
-    px4 = by_name(probe_findings(probe({**ALL, "IMU": 0}, {"MAV_0_MODE": 0, "MAV_0_CONFIG": 101,
-                                                          "MAV_1_MODE": 0, "MAV_1_CONFIG": 0},
-                                       flavour="px4")))
+    instances = {"MAV_0_MODE": 0, "MAV_0_CONFIG": 101, "MAV_1_MODE": 0, "MAV_1_CONFIG": 0}
+    px4 = by_name(probe_findings(probe({**ALL, "IMU": 0}, instances, flavour="px4"), CTX))
     assert (px4["MAV_0_MODE"].set_to, px4["MAV_0_MODE"].severity) == (2, Severity.WARNING)
 
 
 def test_mavlink1_and_prearm_texts():
-    found = by_name(probe_findings(probe(ALL, {**PORTS, "SERIAL2_PROTOCOL": 1}, mavlink1=True)))
+    v1_port = {**PORTS, "SERIAL2_PROTOCOL": 1}
+    found = by_name(probe_findings(probe(ALL, v1_port, mavlink1=True), CTX))
     assert (found["SERIAL2_PROTOCOL"].set_to, found["SERIAL2_PROTOCOL"].severity) == (
         2, Severity.ERROR)
     texts = ["PreArm: VisOdom: not healthy", "PreArm: Need Position Estimate",
              "PreArm: Battery 1 below minimum arming voltage"]
-    findings = [f for f in probe_findings(probe(ALL, PORTS, prearm=texts)) if f.name == "pre-arm"]
+    findings = [f for f in probe_findings(probe(ALL, PORTS, prearm=texts), CTX)
+                if f.name == "pre-arm"]
     assert [f.severity for f in findings] == [Severity.NOTE, Severity.NOTE, Severity.ERROR]
     assert "Battery 1" in findings[2].message
 
@@ -293,3 +294,18 @@ def test_param_client_reads_the_whole_list_and_sets_with_read_back():
     assert held == 7 and values["P2"] == 7
     assert rounded == 2
     assert wire_value("ardupilot", 2, mavlink2.MAV_PARAM_TYPE_INT8) == 2.0
+
+
+@pytest.mark.parametrize(("baud", "output", "usb", "severity"), [
+    (57600, "odometry", False, Severity.ERROR), (115200, "odometry", False, None),
+    (115200, "both", False, Severity.ERROR), (921600, "both", False, None),
+    (57600, "odometry", True, None)])
+def test_a_serial_link_must_carry_the_vision_and_the_streams(baud, output, usb, severity):
+    """ODOMETRY is 245 bytes a frame: 30 a second do not fit in 57600 baud (5760 bytes/s)."""
+    ctx = CheckContext(output=output, vision_rate_hz=30, delay_ms=35, gps_present=False)
+    found = by_name(probe_findings(probe(ALL, PORTS, baud=baud, usb=usb), ctx))
+    if severity is None:
+        assert "baud rate" not in found
+    else:
+        assert found["baud rate"].severity == severity
+        assert "SERIALn_BAUD 921" in found["baud rate"].message

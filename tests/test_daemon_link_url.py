@@ -54,9 +54,14 @@ def test_udp_direction_is_pymavlinks(prefix, listens):
         conn.close()
 
 
-def test_usb_devices_are_recognised():
+def test_usb_devices_are_recognised(tmp_path):
     assert parse_link_url("/dev/ttyACM0,115200").usb
-    assert parse_link_url("/dev/serial/by-id/usb-ArduPilot_CubeOrange_1-if00,115200").usb
+    by_id = tmp_path / "usb-ArduPilot_CubeOrange_1-if00"
+    by_id.symlink_to("/dev/ttyACM1")
+    assert parse_link_url(f"{by_id},115200").usb
+    adapter = tmp_path / "usb-FTDI_FT232R_USB_UART_A50285BI-if00-port0"
+    adapter.symlink_to("/dev/ttyUSB0")
+    assert not parse_link_url(f"{adapter},921600").usb
     assert not parse_link_url("/dev/ttyAMA0,921600").usb
     assert not parse_link_url("tcp:localhost:5760").usb
 
