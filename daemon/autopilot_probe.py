@@ -126,12 +126,17 @@ class Session:
         """Until the autopilot's heartbeat; NoAutopilotError saying what to check if none."""
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(self.heard.wait(), timeout_s)
-        if not self.heard.is_set():
+        if self.heard.is_set():
+            return
+        if self.link.last_error is not None:
             raise NoAutopilotError(
-                f"no autopilot heartbeat on {self.link.spec} within {timeout_s:g} s: check the "
-                "link URL (udpin: when the autopilot sends to us), the baud rate, and that the "
-                "autopilot runs MAVLink on that port (ArduPilot SERIALn_PROTOCOL = 2, PX4 "
-                "MAV_n_CONFIG = that TELEM port, then reboot it)")
+                f"cannot open {self.link.spec}: {self.link.last_error} (is sdvl-companion "
+                "running? stop it first: both use the port)")
+        raise NoAutopilotError(
+            f"no autopilot heartbeat on {self.link.spec} within {timeout_s:g} s: check the link "
+            "URL (udpin: when the autopilot sends to us), the baud rate, and that the autopilot "
+            "runs MAVLink on that port (ArduPilot SERIALn_PROTOCOL = 2, PX4 MAV_n_CONFIG = that "
+            "TELEM port, then reboot it)")
 
     def command(self, command: int, *params: float) -> None:
         """COMMAND_LONG to the autopilot (params 1..7, the rest 0)."""

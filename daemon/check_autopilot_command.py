@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import dataclasses
+import logging
 import sys
 import time
 
@@ -202,8 +203,13 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--reboot goes with --apply")
     parse_link_url(url)
     latency = capture_to_send(args, cfg)
+    link_log = logging.getLogger("sdvl.link")
+    level = link_log.level
+    link_log.setLevel(logging.ERROR)  # retries are summed up in one line when nothing answers
     try:
         return asyncio.run(check(url, context(args, cfg), latency, args))
     except NoAutopilotError as exc:
         print(f"sdvl check-autopilot: {exc}", file=sys.stderr)
         return EXIT_NO_AUTOPILOT
+    finally:
+        link_log.setLevel(level)

@@ -32,6 +32,7 @@ class Link:
         self.on_bytes = on_bytes
         self.retry = (retry_min_s, retry_max_s)
         self.connected = False
+        self.last_error: str | None = None  # why the last attempt to open failed
         self.bytes_in = 0
         self.bytes_out = 0
         self._task: asyncio.Task | None = None
@@ -47,11 +48,13 @@ class Link:
             try:
                 await self._open()
             except (OSError, serial.SerialException) as exc:
+                self.last_error = str(exc)
                 log.warning("link %s: cannot open (%s); retrying in %.1f s", self.spec, exc, delay)
                 await asyncio.sleep(delay)
                 delay = min(2 * delay, self.retry[1])
                 continue
             log.info("link %s: open", self.spec)
+            self.last_error = None
             self.connected, delay = True, self.retry[0]
             self._broken.clear()
             await self._broken.wait()

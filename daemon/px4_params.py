@@ -1,8 +1,11 @@
 """PX4's parameters for a flight on our vision: EKF2 external-vision control, height reference,
 noise floors, quality gate, sensor offset and delay (PX4 src/modules/ekf2/params_external_vision
 .yaml; EKF2.cpp: EKF2_EV_NOISE_MD 0 takes the message's variance with EKF2_EVP_NOISE /
-EKF2_EVA_NOISE as lower bounds). The MAVLink instance's mode is judged from the streams that
-arrive (stream_groups.py).
+EKF2_EVA_NOISE as lower bounds). EV yaw (EKF2_EV_CTRL bit 3) is refused: while it is fused
+EKF2 stops the magnetometer's heading (aid_sources/magnetometer/mag_heading_control.cpp starts
+and continues only without ev_yaw), and the service's north is the heading PX4 sends it, so
+PX4 would be fed its own heading back with no compass behind it. The MAVLink instance's mode
+is judged from the streams that arrive (stream_groups.py).
 """
 
 from __future__ import annotations

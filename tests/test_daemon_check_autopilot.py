@@ -126,6 +126,14 @@ def test_no_autopilot_is_one_line_and_exit_3(capsys):
     assert "no autopilot heartbeat on udpout:127.0.0.1:" in err and "udpin:" in err
 
 
+def test_a_port_that_cannot_be_opened_is_named_in_one_line(capsys):
+    code = main(["check-autopilot", "--link", "/dev/ttySDVL-missing,921600", "--timeout", "1"])
+    err = capsys.readouterr().err.strip()
+    assert code == 3 and len(err.splitlines()) == 1
+    assert err.startswith("sdvl check-autopilot: cannot open serial:/dev/ttySDVL-missing:921600")
+    assert "is sdvl-companion running?" in err
+
+
 def test_bad_arguments_exit_2(capsys):
     assert main(["check-autopilot", "--link", "udp:nowhere"]) == 2
     assert "accepted forms" in capsys.readouterr().err
