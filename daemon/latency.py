@@ -1,11 +1,11 @@
 """The latency an autopilot must be told (VISO_DELAY_MS, EKF2_EV_DELAY), from what is measured.
 
 Capture-to-send is measured by running the service itself for a few seconds: this machine's
-camera (or test pattern) and tracker, the pass-through estimator, sending to a local UDP sink
-(the fusion needs an autopilot's sensors; its own update time is not in the figure, see
-`sdvl bench-latency` estimator_ms), nor is the camera's own delay from exposure to the stamp
-the capture takes (the V4L2 buffer stamp, or the moment the frame was read). The link's share
-is half the TIMESYNC round trip measured to the autopilot. How each autopilot uses our capture
+camera (or test pattern) and tracker, the pass-through estimator, sending to a local UDP sink.
+Not in the figure: the fusion's own update (it needs an autopilot's sensors; `sdvl
+bench-latency` reports it as estimator_ms) and the camera's delay from exposure to the stamp the
+capture takes (the V4L2 buffer stamp, or the moment the frame was read). The link's share is
+half the TIMESYNC round trip measured to the autopilot. How each autopilot uses our capture
 stamps decides what the delay must be:
 - ArduPilot (AP_RTC/JitterCorrection.cpp) maps a stamp to its clock by the smallest
   arrival-minus-stamp offset of each 100 messages, so a message counts as taken at its capture
