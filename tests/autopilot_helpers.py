@@ -28,24 +28,28 @@ def takeoff(height: float = 3.4, ground_s: float = 2.0, climb_s: float = 2.0,
 
 @dataclass
 class Companion:
-    """A vision companion that sends ODOMETRY of the vehicle's true pose, in a frame whose
-    origin is `origin` (NED, where the vision map started) and turned by `yaw_offset_deg`
-    about down; `reset_counter` is what it puts in every message."""
+    """A vision companion that sends ODOMETRY of the true pose of a camera `lever` (body FRD)
+    from the vehicle's centre, in a frame whose origin is `origin` (NED, where the vision map
+    started) and turned by `yaw_offset_deg` about down; `reset_counter` is what it puts in
+    every message."""
 
     link: VirtualLink
     origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
     yaw_offset_deg: float = 0.0
     reset_counter: int = 0
     position_var: float = 0.01
+    lever: np.ndarray = field(default_factory=lambda: np.zeros(3))  # camera in body FRD
 
     def send(self, now: float) -> None:
+        """The pose at `now` (which may be earlier than the link's clock: a late message)."""
         state = self.link.model.vehicle.state(self.link.model.uptime(now))
         turn = Rotation.from_euler("z", self.yaw_offset_deg, degrees=True)
-        position = turn.apply(state["position"] - self.origin)
+        camera = state["position"] + state["rotation"].apply(self.lever)
+        position = turn.apply(camera - self.origin)
         attitude = turn * state["rotation"]
         velocity_body = state["rotation"].inv().apply(state["velocity"])
         self.link.odometry(position, attitude, velocity_body, self.reset_counter,
-                           self.position_var)
+                           self.position_var, stamp_s=now)  # stamped at capture
 
     def fly(self, seconds: float, rate_hz: float = 30.0) -> None:
         self.link.advance(seconds, 1.0 / rate_hz, self.send)

@@ -163,3 +163,25 @@ def test_jitter_correction_takes_the_least_delayed_message_as_arrival():
     corrected = [jitter.correct(0.03 * k, a) for k, a in enumerate(arrivals)]
     assert corrected[-1] == pytest.approx(10.0 + 0.27)  # offset of the fastest, not the mean
     assert jitter.correct(0.0, 20.0) == pytest.approx(19.5)  # at most 500 ms in the past
+
+
+def test_viso_pos_lever_arm_is_taken_off_and_viso_scale_multiplies():
+    link = hovering(1, param_overrides={"VISO_POS_X": 0.3, "VISO_POS_Z": 0.1})
+    Companion(link, lever=np.array([0.3, 0.0, 0.1])).fly(2.0)
+    assert link.model.ekf.filter.position == pytest.approx([0.0, 0.0, -3.4], abs=0.05)
+    params = ParamStore(ardupilot_specs(configured_options().release),
+                        {"VISO_TYPE": 1, "VISO_SCALE": 2.0})
+    odom = VisualOdom(params, Ahrs(), lambda *_: None)
+    sample = PoseSample(0.0, np.array([1.0, 2.0, 3.0]), Rotation.identity(), 0.1, 0.1, 0, 0)
+    assert odom.handle_pose(sample, 0.0).position == pytest.approx([2.0, 4.0, 6.0])
+
+
+def test_viso_orient_turns_the_attitude_only():
+    params = ParamStore(ardupilot_specs(configured_options().release),
+                        {"VISO_TYPE": 2, "VISO_ORIENT": 25})
+    odom = VisualOdom(params, Ahrs(), lambda *_: None)  # AHRS yaw not there: no alignment
+    down = Rotation.from_euler("y", 270, degrees=True)  # a camera looking down, level vehicle
+    sample = PoseSample(0.0, np.array([1.0, 2.0, 3.0]), down, 0.1, 0.1, 0, 0)
+    out = odom.handle_pose(sample, 0.0)
+    assert out.position == pytest.approx([1.0, 2.0, 3.0])
+    assert out.attitude.magnitude() == pytest.approx(0.0, abs=1e-9)

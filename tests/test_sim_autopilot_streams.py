@@ -20,6 +20,15 @@ def counts(link: VirtualLink, since: float) -> dict[str, int]:
             out[msg.get_type()] = out.get(msg.get_type(), 0) + 1
     return out
 
+def counts_after_reboot(link: VirtualLink) -> dict[str, int]:
+    """Reboot, wait out the downtime, and count one second of what the new boot sends."""
+    link.command(mavlink2.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1)
+    link.advance(1.0)
+    since = link.now
+    link.advance(1.0)
+    return counts(link, since)
+
+
 
 def test_fresh_ardupilot_sends_only_heartbeat_and_a_timesync_every_10_s():
     link = VirtualLink(SimOptions())
@@ -69,11 +78,7 @@ def test_set_message_interval_per_message_is_acked_and_lost_at_reboot():
     seen = counts(link, since)
     assert seen["ATTITUDE"] == pytest.approx(50, abs=2)
     assert seen["SCALED_IMU"] == pytest.approx(100, abs=2)
-    link.command(mavlink2.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1)
-    link.advance(1.0)
-    since = link.now
-    link.advance(1.0)
-    assert "ATTITUDE" not in counts(link, since)
+    assert "ATTITUDE" not in counts_after_reboot(link)
 
 
 def test_set_message_interval_zero_is_the_group_rate_and_minus_one_stops():
@@ -97,11 +102,7 @@ def test_request_data_stream_sets_the_group_in_ram_only():
     assert counts(link, since)["ATTITUDE"] == pytest.approx(25, abs=1)
     link.send(link.mav.param_request_read_encode(1, 1, b"MAV3_EXTRA1", -1))
     assert link.of("PARAM_VALUE")[-1].param_value == 25  # readable until the reboot
-    link.command(mavlink2.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1)
-    link.advance(1.0)
-    since = link.now
-    link.advance(1.0)
-    assert "ATTITUDE" not in counts(link, since)
+    assert "ATTITUDE" not in counts_after_reboot(link)
 
 
 def test_request_data_stream_ignored_with_mav_options_bit_2():

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import struct
+from abc import ABC, abstractmethod
 
 from pymavlink.dialects.v20 import common as mavlink2
 
@@ -25,12 +26,12 @@ from sim.autopilot.vehicle import SENSOR_MESSAGES, sensor_message
 
 log = logging.getLogger("sdvl.sim.autopilot")
 MAV_CMD_DO_SET_GLOBAL_ORIGIN = 611  # common.xml (2025), not yet in pymavlink's dialect
-IMU_DT = 0.01  # the estimator's prediction step (EKF3 and EKF2 run at 100 Hz or faster)
+IMU_DT = 0.02  # the stand-ins' prediction step: smooth flights need no more (EKF3 runs faster)
 MAX_CATCH_UP_S = 0.1
 STATUSTEXT_LEN = 50
 
 
-class AutopilotModel:
+class AutopilotModel(ABC):
     """Base of ArduCopterModel and Px4Model; subclasses fill in the firmware's rules."""
 
     autopilot_type = mavlink2.MAV_AUTOPILOT_GENERIC
@@ -56,61 +57,73 @@ class AutopilotModel:
 
     # --- firmware hooks (subclasses) -------------------------------------------------------
 
+    @abstractmethod
     def param_specs(self, stored: dict[str, float]) -> dict[str, ParamSpec]:
-        raise NotImplementedError
+        """The firmware's parameter table given the stored values."""
 
+    @abstractmethod
     def on_boot(self, now: float) -> None:
-        raise NotImplementedError
+        """Set up the firmware's parts (estimator, channel, mode) at boot."""
 
+    @abstractmethod
     def port_active(self) -> bool:
         """Whether the firmware runs MAVLink on the companion's port (as booted)."""
-        raise NotImplementedError
 
+    @abstractmethod
     def default_streams(self) -> dict[str, float]:
         """Message -> Hz streamed on the companion's port after boot (by parameters)."""
-        raise NotImplementedError
 
+    @abstractmethod
     def estimator_step(self, now: float, reading: Reading, dt: float) -> None:
-        raise NotImplementedError
+        """One IMU-rate step of the firmware's estimator."""
 
+    @abstractmethod
     def firmware_message(self, name: str, now: float) -> object | None:
         """A stream message only the firmware can make (HEARTBEAT, estimator outputs)."""
-        raise NotImplementedError
 
+    @abstractmethod
     def handle_firmware(self, msg: object, now: float) -> None:
         """Vision messages, SET_MODE and everything else firmware-specific."""
-        raise NotImplementedError
 
+    @abstractmethod
     def command(self, msg: object, now: float) -> int:
         """MAV_RESULT of a COMMAND_LONG/COMMAND_INT the shared code does not handle."""
-        raise NotImplementedError
 
+    @abstractmethod
     def known_message(self, name: str) -> bool:
-        raise NotImplementedError
+        """Whether SET_MESSAGE_INTERVAL/REQUEST_MESSAGE know the message."""
 
+    @abstractmethod
     def default_interval(self, name: str) -> float:
-        raise NotImplementedError
+        """The interval SET_MESSAGE_INTERVAL 0 restores (0: not sent)."""
+
+    @abstractmethod
+    def set_param_from(self, name: str, msg: object) -> None:
+        """Store a PARAM_SET's value by the firmware's rule."""
+
+    @abstractmethod
+    def timesync_reply(self, msg: object, now: float) -> None:
+        """A TIMESYNC with tc1 set: a reply to one of our requests, or not."""
+
+    @abstractmethod
+    def arm(self, now: float, checks: bool = True) -> int:
+        """Arm with (or without) the firmware's checks; the MAV_RESULT."""
+
+    @abstractmethod
+    def set_mode_named(self, name: str, now: float) -> bool:
+        """Switch to a flight mode by its name; False when refused or unknown."""
 
     def wire(self, value: float, kind: int) -> float:
+        """The float PARAM_VALUE carries for a value of type `kind`."""
         return float(value)
 
-    def set_param_from(self, name: str, msg: object) -> None:
-        raise NotImplementedError
-
     def accept_origin(self, now: float) -> bool:
+        """Whether the firmware takes an EKF origin now."""
         return True
 
     def sends_mavlink1(self) -> bool:
         """Whether the port is set to frame what the autopilot sends as MAVLink 1."""
         return False
-
-    def arm(self, now: float, checks: bool = True) -> int:
-        """Arm with (or without) the firmware's checks; the MAV_RESULT."""
-        raise NotImplementedError
-
-    def set_mode_named(self, name: str, now: float) -> bool:
-        """Switch to a flight mode by its name; False when refused or unknown."""
-        raise NotImplementedError
 
     # --- boot, clock, output ---------------------------------------------------------------
 
@@ -121,6 +134,7 @@ class AutopilotModel:
         self.origin = None
         self.armed = False
         self._last_step = now
+        self.sensing.baro_ground = None  # the barometer calibrates again where it boots
         self.schedule = Schedule()
         rates = self.default_streams()
         if self.opt.streams is not None:  # requested streams replace the parameters' own
@@ -165,7 +179,7 @@ class AutopilotModel:
     # --- the step --------------------------------------------------------------------------
 
     def step(self, now: float) -> None:
-        """Advance to `now`: estimator at IMU rate, then the streams that are due."""
+        """Advance to `now`: estimator at 50 Hz, then the streams that are due."""
         if self._down_until is not None:
             if now < self._down_until:
                 return
@@ -249,11 +263,7 @@ class AutopilotModel:
         if msg.tc1 == 0:
             self.send(self.mav.timesync_encode(round(self.uptime(now) * 1e9), msg.ts1))
         else:
-            self.timesync_rtts.append(self.uptime(now) - msg.ts1 / 1e9)
             self.timesync_reply(msg, now)
-
-    def timesync_reply(self, msg: object, now: float) -> None:
-        """A reply to one of our TIMESYNC requests (PX4 filters its offset from these)."""
 
     def _command(self, msg: object, now: float) -> None:
         shared = {mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL: self._set_message_interval,
@@ -338,15 +348,10 @@ class AutopilotModel:
         elif msg.param_id in self.params:
             self.set_param_from(msg.param_id, msg)
             self.send_param(msg.param_id, self.read_index(msg.param_id))
-        else:
-            self.unknown_param(msg.param_id)
 
     def read_index(self, name: str) -> int:
         """The param_index a reply by name carries."""
         return self.params.names().index(name)
-
-    def unknown_param(self, name: str) -> None:
-        """PARAM_SET for a parameter this firmware does not have."""
 
     def send_param(self, name: str, index: int) -> None:
         kind = self.params.specs[name].kind

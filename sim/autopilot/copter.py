@@ -43,7 +43,7 @@ FORCE_ARM_DISARM = 21196  # magic_force_arm_disarm_value
 NO_STREAM_OVERRIDE = 1 << 2  # MAVn_OPTIONS bit 2, "Ignore Streamrate"
 EKF_CHECK_PERIOD_S = 0.1
 EKF_CHECK_ITERATIONS = 10  # ekf_check.cpp EKF_CHECK_ITERATIONS_MAX: 1 s at 10 Hz
-FLYING_HEIGHT_M = 0.5  # above the boot height: not landed (MAVLink disarm refused)
+FLYING_HEIGHT_M = 0.5  # above the boot height: in the air (no disarm, no height datum reset)
 
 
 @dataclass(frozen=True)
@@ -89,6 +89,7 @@ class ArduCopterModel(AutopilotModel):
         self._ekf_check = (now, 0)
         self._boot_height = None
         self._last_timesync = now
+        self._sent_ts1 = -1
         if self.opt.heartbeat_hz is None or self.opt.heartbeat_hz > 0:
             self.schedule.set("HEARTBEAT", 1.0 / (self.opt.heartbeat_hz or 1.0))
         if self.opt.timesync_hz:
@@ -118,9 +119,6 @@ class ArduCopterModel(AutopilotModel):
             if name in members and hz > 0:
                 return 1.0 / hz
         return AP_DEFAULT_INTERVAL.get(name, 0.0)
-
-    def wire(self, value: float, kind: int) -> float:
-        return float(value)
 
     def set_param_from(self, name: str, msg: object) -> None:
         self.params.set(name, ardupilot_cast(msg.param_value, self.params.specs[name].kind))
@@ -158,8 +156,14 @@ class ArduCopterModel(AutopilotModel):
 
     def timesync_request(self, now: float) -> object:
         """ts1 is micros*1000 + our system id (timesync_timestamp_ns)."""
-        return self.mav.timesync_encode(0, round(self.uptime(now) * 1e6) * 1000
-                                        + self.opt.system_id)
+        self._sent_ts1 = round(self.uptime(now) * 1e6) * 1000 + self.opt.system_id
+        return self.mav.timesync_encode(0, self._sent_ts1)
+
+    def timesync_reply(self, msg: object, now: float) -> None:
+        """handle_timesync: only a reply to the last request counts (its round trip goes to
+        the TSYN log; here to timesync_rtts)."""
+        if msg.ts1 == self._sent_ts1:
+            self.timesync_rtts.append(self.uptime(now) - msg.ts1 / 1e9)
 
     def estimator_step(self, now: float, reading: Reading, dt: float) -> None:
         self.ahrs.attitude = reading.attitude
@@ -335,7 +339,8 @@ class ArduCopterModel(AutopilotModel):
             return mavlink2.MAV_RESULT_FAILED
         home_set = self.origin is not None and self.position_ok(now)
         if not home_set:
-            self.ekf.reset_height_datum(self._last_baro, now)
+            on_ground = self._height_above_boot() < FLYING_HEIGHT_M
+            self.ekf.reset_height_datum(self._last_baro, now, on_ground)
         self.armed = True
         self.record.events.append(Event(now, EventKind.ARMED, self.mode.name))
         return mavlink2.MAV_RESULT_ACCEPTED

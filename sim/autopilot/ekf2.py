@@ -17,6 +17,7 @@ params_external_vision.yaml; EKF2.cpp's EV noise handling; v1.14+):
 - noise: EKF2_EV_NOISE_MD 0 = the message's variance floored at EKF2_EVP/EVV/EVA_NOISE^2
   (parameter when absent), 1 = the parameters; gates EKF2_EVP_GATE, EKF2_EVV_GATE.
 - the barometer (EKF2_BARO_CTRL) is the height reference unless vision is; no GNSS here.
+- EKF2_EV_POS_X/Y/Z (the camera in the body frame) is taken off the position.
 """
 
 from __future__ import annotations
@@ -156,15 +157,15 @@ class Ekf2:
         return np.maximum(var, floor)
 
     def _position(self, sample: EvSample) -> tuple[np.ndarray | None, np.ndarray]:
+        """The sample in the EKF frame less the EKF2_EV_POS_* lever arm, and its variance."""
         var = np.maximum(self._floor(sample.position_var, self.params.get("EKF2_EVP_NOISE")),
                          0.01 ** 2)
-        if sample.pos_frame == "ned":
-            return sample.position, var  # yaw aligned (magnetometer) from the start here
-        if self.ctrl & YAW:
-            return sample.position, var
+        offset = self._attitude.apply([self.params.get(f"EKF2_EV_POS_{a}") for a in "XYZ"])
+        if sample.pos_frame == "ned" or self.ctrl & YAW:
+            return sample.position - offset, var  # NED: yaw aligned (magnetometer) here
         rotated = self._q_error.apply(sample.position)
         orientation = self._floor(sample.orientation_var, self.params.get("EKF2_EVA_NOISE"))
-        return rotated, np.maximum(var, orientation.max())
+        return rotated - offset, np.maximum(var, orientation.max())
 
     def _control_pos(self, position: np.ndarray, var: np.ndarray, t_meas: float,
                      starting: bool, reset: bool, now: float) -> None:

@@ -18,12 +18,14 @@
   (reset_counter change) is ResetPositionNE (and ResetPositionD with external nav height).
 - position not fused for 7 s (10 s with velocity aiding) is a timeout: the next sample resets
   the position; nothing fused for 15 s stops aiding ("EKF3 IMU0 stopped aiding").
+- the camera's VISO_POS_X/Y/Z lever arm is taken off position and velocity (turned by the
+  attitude; CorrectExtNavForSensorOffset, CorrectExtNavVelForSensorOffset).
 - resetHeightDatum on arming without home: the barometer re-zeroed and the height set to 0.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import Enum
 
 import numpy as np
@@ -129,12 +131,14 @@ class Ekf3:
             return
         accel = reading.accel_ned if np.isfinite(reading.accel_ned).all() else np.zeros(3)
         self.filter.predict(accel, dt, now)
+        if self._pos is not None:
+            self._pos = self._lever_arm(self._pos, reading)
         self._update_aiding(now)
         if self._pos is not None:
             self._fuse_ext_nav(self._pos, now)
             self._pos = None
         if self._vel is not None:
-            self._fuse_ext_nav_vel(self._vel, now)
+            self._fuse_ext_nav_vel(self._lever_arm_vel(self._vel, reading), now)
             self._vel = None
         if now - self.timers.last_baro >= BARO_PERIOD_S and np.isfinite(reading.baro_alt):
             self.timers.last_baro = now
@@ -144,6 +148,21 @@ class Ekf3:
             self.record.estimates.append(EstimateSample(
                 now, self.filter.position.copy(), self.filter.velocity.copy(),
                 self.aid is AidMode.ABSOLUTE))
+
+    def _offset(self) -> np.ndarray:
+        return np.array([self.params.get(f"VISO_POS_{axis}") for axis in "XYZ"])
+
+    def _lever_arm(self, pose: ExtNavPose, reading: Reading) -> ExtNavPose:
+        """CorrectExtNavForSensorOffset: the camera's position minus its VISO_POS_* offset
+        turned into NED, the vehicle's position."""
+        shift = reading.attitude.apply(self._offset())
+        return replace(pose, position=pose.position - shift)
+
+    def _lever_arm_vel(self, velocity: ExtNavVelocity, reading: Reading) -> ExtNavVelocity:
+        """CorrectExtNavVelForSensorOffset: less the camera's velocity from rotating about the
+        vehicle."""
+        spin = reading.attitude.apply(np.cross(reading.rates, self._offset()))
+        return replace(velocity, velocity=velocity.velocity - spin)
 
     def _start(self, reading: Reading) -> None:
         """InitialiseFilterBootstrap and the alignment that follows on a still vehicle."""
@@ -265,10 +284,10 @@ class Ekf3:
 
     # --- outputs ---------------------------------------------------------------------------
 
-    def reset_height_datum(self, baro_alt: float, now: float) -> None:
+    def reset_height_datum(self, baro_alt: float, now: float, on_ground: bool) -> None:
         """resetHeightDatum (on the ground, not with a rangefinder height): the barometer reads
         0 here from now on and the height state is 0."""
-        if not self.started or self._src("POSZ") == 2:
+        if not self.started or not on_ground or self._src("POSZ") == 2:
             return
         self.baro_offset = baro_alt
         step = self.filter.reset([2], [0.0], self.filter.variance(2, 0), 0)

@@ -55,6 +55,6 @@ def configured_options(flavour: str = "ardupilot", viso_type: int = 2,
     options = SimOptions(flavour=flavour, **changes)
     options.params = {**configured_values(flavour, options.release, options.companion_serial,
                                           viso_type), **options.params}
-    if not by_parameter:
+    if not by_parameter and options.streams is None:  # an explicit `streams=` is kept
         options.streams = dict(DEFAULT_STREAMS[flavour] if requested is None else requested)
     return options

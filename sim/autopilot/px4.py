@@ -190,6 +190,8 @@ class Px4Model(AutopilotModel):
         return None
 
     def timesync_reply(self, msg: object, now: float) -> None:
+        """MavlinkTimesync: replies update the offset filter."""
+        self.timesync_rtts.append(self.uptime(now) - msg.ts1 / 1e9)
         self.timesync.update(self.uptime(now), msg.tc1 / 1e9, msg.ts1 / 1e9)
 
     # --- receiving -------------------------------------------------------------------------

@@ -28,6 +28,7 @@ class Reading:
 
     accel_ned: np.ndarray
     attitude: Rotation
+    rates: np.ndarray  # body, rad/s
     baro_alt: float
     baro_ground: float
 
@@ -57,4 +58,5 @@ class Sensing:
             ground = height + float(np.mean(self.rng.normal(0.0, self.noise.baro_noise, 20)))
         if self.baro_ground is None:
             self.baro_ground = ground
-        return Reading(accel, attitude, baro, self.baro_ground)
+        rates = np.asarray(state["rates"], float)
+        return Reading(accel, attitude, rates, baro, self.baro_ground)
