@@ -27,6 +27,7 @@ from daemon.stream_groups import (
     ARDUPILOT_GROUPS,
     DATA_STREAM_IDS,
     MAV_CMD_SET_MESSAGE_INTERVAL,
+    NEEDS,
     PX4_INSTANCES,
     SERIAL_PORTS,
     Need,
@@ -44,6 +45,7 @@ WINDOW_S = 2.0  # arrival rates are counted over this window
 SILENT_S = 3.0  # a stream that flowed and stops this long: ask again (a reboot not seen)
 REASK_MIN_S = 10.0
 PARAM_WAIT_S = 1.5
+TRACKED = {name for needs in NEEDS.values() for need in needs for name in need.accepts}
 HINT_PARAMS = {"ardupilot": ("MAV1_EXTRA1", "SR0_EXTRA1",
                              *(f"SERIAL{x}_PROTOCOL" for x in SERIAL_PORTS)),
                "px4": tuple(f"MAV_{n}_{p}" for n in PX4_INSTANCES for p in ("MODE", "CONFIG"))}
@@ -85,6 +87,7 @@ class StreamKeeper:
         self.statuses: dict[str, StreamStatus] = {}
         self.params: dict[str, float] = {}
         self.arrivals: dict[str, deque] = {}
+        self.last_arrival: dict[str, float] = {}
         self.restarts = 0
         self._queue: list[Need] = []
         self._asking: tuple[Need, float, int] | None = None
@@ -108,15 +111,19 @@ class StreamKeeper:
         elif name == "PARAM_VALUE":
             self.params[msg.param_id] = from_wire(self.watch.flavour, msg.param_value,
                                                   msg.param_type)
-        else:
-            self.arrivals.setdefault(name, deque(maxlen=512)).append(now)
+        elif name in TRACKED:
+            self.arrivals.setdefault(name, deque()).append(now)
+            self.last_arrival[name] = now
 
     def rate(self, names: tuple[str, ...], now: float) -> float:
-        """Messages per second of the fastest of `names` over the last WINDOW_S."""
+        """Messages per second of the fastest of `names` over the last WINDOW_S (older
+        arrivals are dropped as they age out, so this stays cheap in the loop)."""
         best = 0
         for name in names:
-            times = self.arrivals.get(name, ())
-            best = max(best, sum(1 for t in times if now - t <= WINDOW_S))
+            times = self.arrivals.get(name)
+            while times and now - times[0] > WINDOW_S:
+                times.popleft()
+            best = max(best, len(times or ()))
         return best / WINDOW_S
 
     # --- the loop ----------------------------------------------------------------------------
@@ -162,7 +169,7 @@ class StreamKeeper:
                    and self._flowed_then_stopped(s.need, now) for s in self.statuses.values())
 
     def _flowed_then_stopped(self, need: Need, now: float) -> bool:
-        last = max((self.arrivals[n][-1] for n in need.accepts if self.arrivals.get(n)),
+        last = max((self.last_arrival[n] for n in need.accepts if n in self.last_arrival),
                    default=None)
         return last is not None and now - last > SILENT_S
 
