@@ -15,7 +15,7 @@ from pathlib import Path
 import serial
 
 from daemon.fusion.config import FusionConfig
-from daemon.link import parse_link_url
+from daemon.link_url import LinkKind, parse_link_url
 from sdvl.errors import InputError
 from sdvl.tables import bounded, check_fields, dataclass_from_table, one_of, read_toml, suggest
 
@@ -59,7 +59,7 @@ class MountingConfig:
 class MavlinkConfig:
     """The autopilot link and what is sent on it."""
 
-    link: str = "udpout:127.0.0.1:14550"
+    link: str = "/dev/serial0,921600"
     system_id: int = bounded(1, 1, 255)
     component_id: int = bounded(197, 1, 255)
     autopilot_system_id: int = bounded(0, 0, 255, why="0: the first autopilot heard")
@@ -134,8 +134,11 @@ def _check_ranges(cfg: Config, path: Path | None) -> None:
          "camera.reconnect_min_s must be <= camera.reconnect_max_s")
     need((cfg.camera.width == 0) == (cfg.camera.height == 0),
          "camera.width and camera.height are set together (both 0: the device's default size)")
-    link = parse_link_url(cfg.mavlink.link)
-    need(link.kind != "serial" or link.baud in BAUD_RATES,
+    try:
+        link = parse_link_url(cfg.mavlink.link)
+    except InputError as exc:
+        raise InputError(exc.message, path) from None
+    need(link.kind != LinkKind.SERIAL or link.baud in BAUD_RATES,
          f"mavlink.link '{cfg.mavlink.link}': {link.baud} is not a serial baud rate; use the "
          "autopilot port's SERIALn_BAUD rate, e.g. 57600, 115200, 460800 or 921600")
 

@@ -24,7 +24,7 @@ from daemon.frames import BadFrame, FrameCheck
 from daemon.health import Health
 from daemon.recordings import open_recording
 from sdvl.errors import InputError
-from sim.autopilot import SimAutopilot, SimOptions
+from sim.autopilot import SimAutopilot, SimOptions, configured_options
 
 TERMINATION = mavlink2.MAV_STATE_FLIGHT_TERMINATION
 CAMERA = CameraModel(64, 48, 50.0, 50.0, 32.0, 24.0, "none", [])
@@ -284,12 +284,26 @@ def test_an_estimate_with_nan_is_never_sent():
     assert odometry and all(np.isfinite([m.x, m.y, m.z]).all() for m in odometry)
 
 
+class SeenEstimator(PassThroughEstimator):
+    """Remembers the sender of every autopilot message it is given."""
+
+    def __init__(self, *args):
+        super().__init__(*args)
+        self.senders: set[tuple[int, int]] = set()
+
+    def on_autopilot_message(self, msg):
+        self.senders.add((msg.get_srcSystem(), msg.get_srcComponent()))
+        super().on_autopilot_message(msg)
+
+
 def test_a_second_system_on_the_link_is_ignored_by_the_running_service():
-    """Attitude from system 2 (roll 0.5 rad) injected on the link of an autopilot that sends
-    none: the service stays bound to system 1 and its estimator never sees that attitude."""
+    """Attitude from system 2 (roll 0.5 rad) injected on the autopilot's link: the service
+    stays bound to system 1 and its estimator is never given system 2's messages."""
     intruder = mavlink2.MAVLink(None, srcSystem=2, srcComponent=1)
-    with SimAutopilot(SimOptions(heartbeat_hz=5, streams={})) as sim:
-        run = RunningService(service_config(sim.url))
+    with SimAutopilot(configured_options(heartbeat_hz=5)) as sim:
+        cfg = service_config(sim.url)
+        estimator = SeenEstimator(cfg.mounting, cfg.mavlink)
+        run = RunningService(cfg, estimator=estimator)
         assert wait_for(lambda: run.service.watch.bound, 5.0)
         for k in range(40):
             msg = intruder.attitude_encode(1000 + 20 * k, 0.5, 0.0, 1.0, 0.0, 0.0, 0.0)
@@ -300,4 +314,4 @@ def test_a_second_system_on_the_link_is_ignored_by_the_running_service():
     watch = run.service.watch
     assert (watch.system_id, watch.component_id) == (1, 1)
     assert watch.ignored_sources[(2, 1)] == 40
-    assert np.allclose(run.service.estimator._level, np.eye(3))  # still unlevelled
+    assert estimator.senders == {(1, 1)}
