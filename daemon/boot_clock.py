@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 BACKSTEP_S = 1.0  # stamps may come out of order by this much (PX4 stamps sensor samples)
 AHEAD_S = 1.0  # and arrive this much earlier than the least-delayed message implies
+EARLY_S = 0.05  # ... but only this much of it is believed (a link delay's jitter)
 CONFIRM_S = 1.0  # a new clock must cover this much of its own time ...
 CONFIRM_COUNT = 5  # ... in this many messages, with none on the old clock in between
 OFFSET_RELAX = 1e-3  # s/s: the least-delay offset forgets (far above any crystal's drift)
@@ -67,7 +68,11 @@ class _Track:
         return self.boot - BACKSTEP_S <= boot <= self.latest(arrival) + AHEAD_S
 
     def add(self, boot: float, arrival: float) -> None:
-        self.offset = arrival - max(self.latest(arrival), boot)  # the least delay, relaxed
+        """Take a stamp on this clock. One ahead of the least-delay prediction moves it by at
+        most EARLY_S: odd stamps within AHEAD_S must not walk the clock forward."""
+        latest = self.latest(arrival)
+        boot = min(boot, latest + EARLY_S)
+        self.offset = arrival - max(latest, boot)  # the least delay, relaxed
         self.boot, self.arrival = max(self.boot, boot), max(self.arrival, arrival)
         self.count += 1
 

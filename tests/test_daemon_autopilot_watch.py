@@ -49,6 +49,17 @@ def test_one_stream_stamped_10_s_back_for_5_s_is_ignored_not_a_reboot():
     assert sum(s is Stamp.OFF_CLOCK for s in got) == len(bad)
 
 
+def test_odd_stamps_just_ahead_cannot_walk_the_clock_into_a_false_reboot():
+    """Every 10th stamp a little further ahead than the last odd one, each within what is
+    taken as on the clock from where the previous one left it: the clock must not be walked
+    forward until the true stamps look like a restart."""
+    items = stream(100.0, 130.0)
+    items = [(b + 0.9 * (i // 10) if i % 10 == 5 else b, a) for i, (b, a) in enumerate(items)]
+    got = classify(BootClock(), items)
+    assert Stamp.REBOOTED not in got and Stamp.JUMPED not in got
+    assert got.count(Stamp.OFF_CLOCK) <= len(items) // 10
+
+
 def test_a_real_reboot_is_recognised_within_two_seconds():
     clock = BootClock()
     classify(clock, stream(100.0, 300.0))
