@@ -17,7 +17,7 @@ import logging
 import statistics
 import sys
 import time
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -64,6 +64,7 @@ class ServiceStats:
     skipped_duplicate: int = 0
     skipped_not_finite: int = 0
     timesync_replies: int = 0
+    message_errors: Counter = field(default_factory=Counter)  # "ATTITUDE: ValueError" -> n
     send_latency_s: deque = field(default_factory=lambda: deque(maxlen=100))
 
 
@@ -321,6 +322,19 @@ class Service:
         return self.codec.send(self.codec.mav.statustext_encode(severity, text.encode()))
 
     def _on_message(self, msg: object) -> None:
+        """One decoded message; an error while handling it is counted and logged (the first
+        of each kind with its traceback), never left to the transport (asyncio closes a TCP
+        connection whose protocol raised)."""
+        try:
+            self._handle_message(msg)
+        except Exception as exc:
+            key = f"{msg.get_type()}: {type(exc).__name__}"
+            self.stats.message_errors[key] += 1
+            if self.stats.message_errors[key] == 1:
+                log.error("handling %s failed (%s); counted, logged once", msg.get_type(), exc,
+                          exc_info=exc)
+
+    def _handle_message(self, msg: object) -> None:
         """TIMESYNC requests are answered whoever asks; everything else is used only when it
         comes from the bound autopilot (autopilot_watch.py)."""
         now = time.monotonic()

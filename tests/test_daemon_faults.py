@@ -315,3 +315,28 @@ def test_a_second_system_on_the_link_is_ignored_by_the_running_service():
     assert (watch.system_id, watch.component_id) == (1, 1)
     assert watch.ignored_sources[(2, 1)] == 40
     assert estimator.senders == {(1, 1)}
+
+
+class BrokenIntakeEstimator(PassThroughEstimator):
+    """Raises on every ATTITUDE it is given (a bug in a message handler)."""
+
+    def on_autopilot_message(self, msg):
+        if msg.get_type() == "ATTITUDE":
+            raise ValueError("a bug in the handler")
+        super().on_autopilot_message(msg)
+
+
+@pytest.mark.parametrize("port", ["udp", "tcp"])
+def test_an_error_handling_a_message_is_counted_and_the_link_stays(port, caplog):
+    caplog.set_level(logging.WARNING)
+    with SimAutopilot(configured_options(heartbeat_hz=5, port=port)) as sim:
+        cfg = service_config(sim.url)
+        run = RunningService(cfg, estimator=BrokenIntakeEstimator(cfg.mounting, cfg.mavlink))
+        assert wait_for(lambda: run.service.stats.message_errors["ATTITUDE: ValueError"] >= 20,
+                        8.0)
+        t0 = time.monotonic()
+        time.sleep(1.0)
+        run.stop()
+    assert len(sim.messages("ODOMETRY", since=t0)) >= 15  # still sending over the same link
+    assert not any("reopening" in r.getMessage() for r in caplog.records)  # link not lost
+    assert sum("handling ATTITUDE failed" in r.getMessage() for r in caplog.records) == 1
