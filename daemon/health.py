@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink2
 
+from sdvl.errors import InputError
+
 NO_FRAMES_S = 1.0  # no frame tracked for this long: something is wrong, say what
 
 
@@ -107,8 +109,9 @@ class HealthCheck:
 
     def check(self, now: float, capture: object, tracking: object) -> Health | Fault | None:
         """A Fault, the state when no frame was tracked for no_frames_s, or None."""
-        for thread in (capture, tracking):
-            if not thread.is_alive() and thread.error is not None:
+        for thread in (capture, tracking):  # a configuration error ends the service itself
+            if not thread.is_alive() and thread.error is not None \
+                    and not isinstance(thread.error, InputError):
                 error = thread.error
                 return Fault(Health.FAILED, f"the {thread.name} thread died "
                                             f"({type(error).__name__}: {error})")
