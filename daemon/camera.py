@@ -246,7 +246,7 @@ class CaptureThread(threading.Thread):
     the calibration does not fit (InputError) or on a bug."""
 
     def __init__(self, source: FrameSource, slot: LatestSlot, backoff: tuple[float, float],
-                 on_state: Callable[[str], None] = lambda state: None,
+                 on_state: Callable[[Health], None] = lambda state: None,
                  check: FrameCheck | None = None):
         super().__init__(name="capture", daemon=True)
         self.source, self.slot, self.backoff = source, slot, backoff
@@ -254,7 +254,6 @@ class CaptureThread(threading.Thread):
         self.check = check or FrameCheck()
         self.stopping = threading.Event()
         self.frames = 0
-        self.finished = False  # the finite source ended (not a failure)
         self.error: BaseException | None = None
         self.busy: tuple[str, float] | None = None  # ("open" or "read", monotonic start)
         self.watch_stalls = getattr(source, "blocks", False)
@@ -319,7 +318,6 @@ class CaptureThread(threading.Thread):
                 if self.source.finite:
                     log.info("camera %s: end of stream after %d frames", self.source.name,
                              self.frames)
-                    self.finished = True
                     return True
                 return False
             t_source, t_capture, image = item
