@@ -23,11 +23,25 @@ class FusionConfig:
     camera_x_m: float = 0.0
     camera_y_m: float = 0.0
     camera_z_m: float = 0.0
-    # publication gate: scale and heading standard deviations below these, for min_aligned_s
+    # estimates go out from the autopilot's first ATTITUDE on, with the filter's covariance
+    # (the autopilot's VisOdom pre-arm check needs them before take-off); none while the
+    # horizontal position std is above this (the filter no longer knows where the vehicle is)
+    publish_max_std_m: float = 10.0
+    # the map counts as aligned (STATUSTEXT, and the scale fits stop) once scale and heading
+    # standard deviations have been below these for min_aligned_s
     scale_std_max: float = 0.03  # relative (0.03 = 3 %)
     heading_std_max_deg: float = 2.0
     min_aligned_s: float = 0.5
     progress_interval_s: float = 2.0
+    # standing still (rest.py): zero velocity fused with this std while the autopilot says it
+    # is landed, or it is disarmed and its IMU has been quiet for rest_window_s (specific force
+    # within rest_accel_tol of g, rates below rest_gyro_tol); flight states older than
+    # flight_state_timeout_s are not used
+    rest_velocity_std: float = 0.01  # m/s
+    rest_window_s: float = 0.5
+    rest_accel_tol: float = 0.3  # m/s^2
+    rest_gyro_tol: float = 0.03  # rad/s
+    flight_state_timeout_s: float = 3.0
     # priors of a new map segment
     scale_prior_std: float = 2.0  # of ln(scale): 2.0 lets the scale be 7x off either way
     initial_scale: float = 1.0  # metres per VO unit guessed for the first segment
@@ -148,6 +162,8 @@ class FusionConfig:
     def check(self, path: Path | None = None) -> None:
         """InputError naming the first setting that makes no sense (in config file `path`)."""
         positive = ("scale_std_max", "heading_std_max_deg", "progress_interval_s",
+                    "publish_max_std_m", "rest_velocity_std", "rest_window_s", "rest_accel_tol",
+                    "rest_gyro_tol", "flight_state_timeout_s",
                     "scale_prior_std", "initial_scale", "start_velocity_std",
                     "map_depth_units", "range_scale_prior_std",
                     "coarse_scale_std", "vo_position_std_m",
