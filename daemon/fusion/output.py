@@ -19,6 +19,15 @@ def inflation(cfg: FusionConfig, quality: str) -> float:
     return getattr(cfg, key) if key else 1.0
 
 
+def attitude_noise(cfg: FusionConfig, quality: str) -> np.ndarray:
+    """Covariance of the autopilot's attitude (compass heading noisier than the tilt) plus a
+    floor for the tracker's rotation (rad^2, N frame)."""
+    tilt, heading, vo = np.radians([cfg.attitude_std_deg, cfg.heading_std_deg,
+                                    cfg.vo_rotation_std_deg])
+    return (np.diag([tilt**2, tilt**2, heading**2])
+            + np.eye(3) * vo**2 * inflation(cfg, quality))
+
+
 def quality_percent(position_cov: np.ndarray, good_std_m: float) -> int:
     """ODOMETRY quality from the position uncertainty: 100 at or below `good_std_m`, falling
     as 1/std, never below 1."""
