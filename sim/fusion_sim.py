@@ -208,16 +208,17 @@ def autopilot_messages(truth: Truth, opt: SensorOptions, rng: np.random.Generato
 
 
 def _flight_state_messages(truth: Truth, opt: SensorOptions, rng: np.random.Generator) -> list:
-    """HEARTBEAT at 1 Hz (armed from opt.armed_at_s) and EXTENDED_SYS_STATE at 5 Hz (on the
-    ground while the vehicle has not left it), as (arrival, message)."""
+    """HEARTBEAT at 1 Hz (armed from opt.armed_at_s; STANDBY while on the ground, as
+    ArduCopter's) and EXTENDED_SYS_STATE at 5 Hz (on the ground while the vehicle has not left
+    it), as (arrival, message)."""
+    left = int(np.argmax((-truth.p[:, 2] > 0.02) | (np.linalg.norm(truth.v, axis=1) > 0.05)))
     out = []
     for t in np.arange(0.0, truth.t[-1], 1.0):
         armed = mavlink2.MAV_MODE_FLAG_SAFETY_ARMED if t >= opt.armed_at_s else 0
+        status = mavlink2.MAV_STATE_STANDBY if truth.at(t) < left else mavlink2.MAV_STATE_ACTIVE
         out.append((t + BOOT_OFFSET, mavlink2.MAVLink_heartbeat_message(
             mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA,
-            armed | mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 0,
-            mavlink2.MAV_STATE_ACTIVE, 3)))
-    left = int(np.argmax((-truth.p[:, 2] > 0.02) | (np.linalg.norm(truth.v, axis=1) > 0.05)))
+            armed | mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 0, status, 3)))
     for t in np.arange(0.0, truth.t[-1], 0.2):
         landed = (mavlink2.MAV_LANDED_STATE_ON_GROUND if truth.at(t) < left
                   else mavlink2.MAV_LANDED_STATE_IN_AIR)

@@ -49,7 +49,7 @@ from daemon.fusion.sensors import (
     Imu,
     LocalPosition,
     Range,
-    flight_state,
+    flight_states,
     parse,
 )
 from daemon.fusion.state import THETA, NavFilter
@@ -188,10 +188,10 @@ class FusionEstimator:
                 self._ingest(arrival, msg)
 
     def _ingest(self, arrival: float, msg: object) -> None:
-        state = flight_state(msg)
-        if state is not None:  # unstamped: their arrival time is close enough
-            (self.rest.on_landed if state[0] == "landed" else self.rest.on_armed)(arrival,
-                                                                                   state[1])
+        states = flight_states(msg)
+        for kind, value in states:  # unstamped: their arrival time is close enough
+            (self.rest.on_landed if kind == "landed" else self.rest.on_armed)(arrival, value)
+        if states:
             return
         parsed = parse(msg)
         if parsed is None:

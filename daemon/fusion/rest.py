@@ -34,8 +34,10 @@ class RestDetector:
         self.rates: deque[tuple[float, float]] = deque()  # (time, |rate|)
 
     def on_landed(self, t: float, on_ground: bool | None) -> None:
-        """EXTENDED_SYS_STATE's landed state (None: the autopilot does not know)."""
-        self.landed = None if on_ground is None else (t, on_ground)
+        """The autopilot's land detector (None: it cannot tell now; the last word stands until
+        it times out)."""
+        if on_ground is not None:
+            self.landed = (t, on_ground)
 
     def on_armed(self, t: float, armed: bool) -> None:
         """HEARTBEAT's armed flag."""
