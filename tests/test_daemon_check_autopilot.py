@@ -8,8 +8,8 @@ import pytest
 
 from daemon.autopilot_params import check_parameters, from_wire, parameter_names, wire_value
 from sdvl.cli import main
-from sim.autopilot import SimAutopilot, SimOptions
-from sim.autopilot.params import INT32, PX4_PARAMS
+from sim.autopilot import SimAutopilot, configured_options
+from sim.autopilot.params import INT32, configured_values, px4_specs
 
 
 def check(sim: SimAutopilot, capsys, *extra: str) -> tuple[int, str]:
@@ -18,7 +18,7 @@ def check(sim: SimAutopilot, capsys, *extra: str) -> tuple[int, str]:
 
 
 def test_vision_ready_ardupilot_passes(capsys):
-    with SimAutopilot(SimOptions(heartbeat_hz=5)) as sim:
+    with SimAutopilot(configured_options(heartbeat_hz=5, viso_type=3)) as sim:
         code, out = check(sim, capsys)
     assert code == 0, out
     assert "autopilot: ardupilot (system 1)" in out
@@ -32,7 +32,7 @@ def test_vision_ready_ardupilot_passes(capsys):
 def test_misconfigured_ardupilot_says_what_to_set(capsys):
     bad = {"VISO_TYPE": 0, "EK3_SRC1_POSXY": 3, "VISO_SCALE": 2.0, "AHRS_EKF_TYPE": 2,
            "VISO_DELAY_MS": 10}
-    with SimAutopilot(SimOptions(port="tcp", heartbeat_hz=5, param_overrides=bad)) as sim:
+    with SimAutopilot(configured_options(port="tcp", heartbeat_hz=5, param_overrides=bad)) as sim:
         code, out = check(sim, capsys, "--latency-ms", "62")
     assert code == 1
     assert "ERROR   VISO_TYPE = 0: set 3" in out
@@ -43,8 +43,8 @@ def test_misconfigured_ardupilot_says_what_to_set(capsys):
 
 
 def test_px4_int_parameters_are_decoded(capsys):
-    with SimAutopilot(SimOptions(flavour="px4", port="pty", heartbeat_hz=5,
-                                 param_overrides={"EKF2_EV_CTRL": 0})) as sim:
+    with SimAutopilot(configured_options(flavour="px4", port="pty", heartbeat_hz=5,
+                                 param_overrides={"EKF2_EV_CTRL": 0, "EKF2_HGT_REF": 3})) as sim:
         code, out = check(sim, capsys)
     assert code == 1
     assert "autopilot: px4" in out
@@ -53,7 +53,7 @@ def test_px4_int_parameters_are_decoded(capsys):
 
 
 def test_mavlink1_link_is_reported(capsys):
-    with SimAutopilot(SimOptions(mavlink1=True, heartbeat_hz=5)) as sim:
+    with SimAutopilot(configured_options(mavlink1=True, heartbeat_hz=5)) as sim:
         code, out = check(sim, capsys)
     assert code == 1 and "link speaks MAVLink 1" in out
 
@@ -79,7 +79,8 @@ def test_rules_depend_on_the_message_type():
     findings = check_parameters("ardupilot", {**ardupilot, "VISO_QUAL_MIN": 10},
                                 "vision_position")
     assert any(f.name == "VISO_QUAL_MIN" and "no quality" in f.fix for f in findings)
-    px4 = {name: value for name, (value, _) in PX4_PARAMS.items()}
+    px4 = {name: spec.default for name, spec in px4_specs().items()}
+    px4.update({**configured_values("px4"), "EKF2_EV_CTRL": 11, "EKF2_HGT_REF": 3})
     assert check_parameters("px4", px4, "odometry") == []
     findings = check_parameters("px4", {**px4, "EKF2_EV_CTRL": 15}, "vision_position")
     assert [f.severity for f in findings] == ["warning"]

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sim.autopilot import SimAutopilot, SimOptions
+from sim.autopilot import SimAutopilot, SimOptions, configured_options
 from sim.autopilot.vehicle import Vehicle, nearest_sample
 from sim.datasets.layout import SensorSamples
 from sim.sequence import ImuSamples
@@ -120,7 +120,7 @@ class AutopilotProcess:
         self.clock = multiprocessing.Array("d", [math.nan, math.nan])
         self._conn, child = multiprocessing.Pipe()
         self._process = multiprocessing.Process(
-            target=_serve, args=(child, options or SimOptions(), trajectory, (imu, sensors),
+            target=_serve, args=(child, options or configured_options(), trajectory, (imu, sensors),
                                  self.clock),
             name="sim-autopilot", daemon=True)
         self._process.start()

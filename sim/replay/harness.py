@@ -23,7 +23,7 @@ from daemon.config import Config, replace
 from daemon.run_command import tracker_factory
 from daemon.service import Service
 from sdvl.errors import InputError
-from sim.autopilot import SimOptions
+from sim.autopilot import configured_options
 from sim.replay.autopilot_process import AutopilotProcess, VisionMessage
 from sim.replay.flight import (
     body_imu,
@@ -221,7 +221,7 @@ def _replay(sequence: object, config: Config, realtime: bool, frames: FirstFrame
     flight = (vehicle_trajectory(sequence.groundtruth, config,
                                  sequence.extras.get("T_ned_world"))
               if sequence.groundtruth is not None else None)
-    options = SimOptions(streams=sensor_streams("ardupilot", flight, without))
+    options = configured_options(requested=sensor_streams("ardupilot", flight, without))
     autopilot = AutopilotProcess(options, None if flight is None else resampled(flight),
                                  body_imu(sequence), sequence.extras.get("sensors"))
     received: list[VisionMessage] = []
