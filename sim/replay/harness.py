@@ -124,6 +124,13 @@ class ReplayRun:
     flight_start: tuple[float, float] | None = None  # (t_source, t_capture): its first frame
 
 
+def aligned_time(estimator: object, rows: list[dict]) -> float | None:
+    """Sequence time of the frame at which the fusion's map first aligned (None: never, or no
+    fusion)."""
+    capture = getattr(estimator, "first_aligned_s", None)
+    return next((r["t_source"] for r in rows if r["t_capture"] == capture), None)
+
+
 def during_replay(trajectory: Trajectory, run: ReplayRun) -> Trajectory:
     """The part of a trajectory while frames were played (e.g. with --max-frames)."""
     if not run.rows:
@@ -273,6 +280,7 @@ def _replay(sequence: object, config: Config, plan: ReplayPlan, show: Progress,
         peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, exit_code=code,
         stats={"sent": stats.sent, "skipped_rate": stats.skipped_rate,
                "skipped_stale": stats.skipped_stale,
-               "skipped_duplicate": stats.skipped_duplicate},
+               "skipped_duplicate": stats.skipped_duplicate,
+               "aligned_t": aligned_time(service.estimator, recorder.rows)},
         without=plan.without, autopilot=outcome,
         flight_start=source.flight_start)

@@ -27,7 +27,7 @@ from daemon.messages import odometry
 from sim.autopilot.vehicle import Vehicle, sensor_message
 from sim.replay.autopilot_process import VisionMessage, with_recordings
 from sim.replay.flight import body_imu, resampled, sensor_streams
-from sim.replay.harness import FirstFrames, ReplayRun
+from sim.replay.harness import FirstFrames, ReplayRun, aligned_time
 from sim.replay.progress import Progress
 from sim.trajectory import Trajectory
 
@@ -134,7 +134,8 @@ def run_lockstep(sequence: object, config: Config, frames: FirstFrames, flight: 
         received=received, flight=flight, wall_s=time.perf_counter() - wall0,
         cpu_s=time.process_time() - cpu0, warmup_s=0.0,
         peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, exit_code=0,
-        stats={"sent": len(received), "skipped_stale": 0, "lockstep": True}, without=without)
+        stats={"sent": len(received), "skipped_stale": 0, "lockstep": True,
+               "aligned_t": aligned_time(estimator, rows)}, without=without)
 
 
 def lockstep_config(config: Config) -> Config:

@@ -247,7 +247,8 @@ def accuracy(run: ReplayRun, received: Received,
         tracked = [r["t_source"] for r in run.rows if r["has_pose"]]
         out.update(fusion_scores(aligned, groundtruth, velocity_error,
                                  received.position_cov[index], received.velocity_cov[index],
-                                 min(tracked) if tracked else None, run.compass_bias_deg))
+                                 min(tracked) if tracked else None, run.compass_bias_deg,
+                                 run.stats.get("aligned_t")))
     return out, aligned, groundtruth
 
 
@@ -321,8 +322,9 @@ def _fusion_lines(r: dict) -> list[str]:
         f"{_num(r['nees_velocity'], '.2f')}",
         f"           tracking from {_num(r['tracking_start_s'], '.2f')} s, first published "
         f"{r['first_publish_s']:.2f} s; take-off {_num(r['takeoff_s'], '.2f')} s (climb "
-        f"{r['climb_m']:.1f} m): published {_num(r['publish_after_takeoff_s'], '.2f')} s "
-        "after it"]
+        f"{r['climb_m']:.1f} m): published {_num(r['publish_after_takeoff_s'], '+.2f')} s, "
+        f"aligned {_num(r['aligned_after_takeoff_s'], '+.2f')} s after it; errors beyond 3 "
+        f"sigma {_pct(r['overconfident_fraction'])}"]
 
 
 def _autopilot_lines(r: dict) -> list[str]:
