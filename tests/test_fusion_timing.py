@@ -11,6 +11,7 @@ from daemon.fusion.estimator import FusionEstimator
 from daemon.fusion.sensors import remote_time
 from daemon.fusion.state import LOG_SCALE, POS, VEL
 from sim import fusion_sim as fh
+from sim.replay.fusion_scores import turned_about_down
 from vo.result import FrameResult
 
 
@@ -84,3 +85,40 @@ def test_a_frame_older_than_the_last_one_is_not_published(flight: fh.Flight) -> 
     carried = estimator.on_frame(FrameResult(0.0, None, "lost"), t_last + 0.1)
     assert carried is not None and carried.t_capture == t_last + 0.1
     assert np.trace(carried.pose_covariance[:3, :3]) >= np.trace(last.pose_covariance[:3, :3])
+
+
+def test_a_stalled_tracker_is_bridged_on_the_imu(flight: fh.Flight) -> None:
+    """No frame for 0.6 s in the survey (the tracker busy): the bridge's estimates carry the
+    vehicle on with the IMU, their covariance growing and covering the error, and the frames
+    after the stall continue without a reset."""
+    estimator = FusionEstimator(FusionConfig(), MountingConfig())
+    stall = (12.0, 12.6)  # flight time, s
+    clock = {"now": 0.0}
+    estimator.now = lambda: clock["now"]
+    k, bridged, after = 0, [], []
+    messages = flight.messages
+    for ready, result, t_capture in flight.frames:
+        t = t_capture - fh.BOOT_OFFSET
+        if stall[0] <= t < stall[1]:
+            while k < len(messages) and messages[k][0] <= ready:
+                clock["now"] = messages[k][0]
+                estimator.on_autopilot_message(messages[k][1])
+                k += 1
+            if round(t * 30) % 2 == 0:  # the service asks every other frame period
+                bridged.append((t, estimator.bridge(t_capture)))
+            continue
+        while k < len(messages) and messages[k][0] <= ready:
+            clock["now"] = messages[k][0]
+            estimator.on_autopilot_message(messages[k][1])
+            k += 1
+        estimate = estimator.on_frame(result, t_capture)
+        if t >= stall[1] and estimate is not None:
+            after.append(estimate)
+    assert bridged and all(e is not None for _, e in bridged)
+    stds = [np.sqrt(np.trace(e.pose_covariance[:3, :3])) for _, e in bridged]
+    assert stds[-1] > stds[0]
+    for t, e in bridged:
+        moved = flight.truth.p[flight.truth.at(t)] - flight.truth.p[0]
+        error = e.position - turned_about_down(moved[None], flight.compass_bias_deg)[0]
+        assert error @ np.linalg.solve(e.pose_covariance[:3, :3], error) < 16.3  # 3 dof 99.9%
+    assert after and after[0].reset_counter == bridged[-1][1].reset_counter == 0

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import threading
 import time
 from collections import deque
@@ -81,7 +82,8 @@ class FusionEstimator:
         self.sources: dict[str, str] = {}  # "imu"/"baro" -> the message type fused
         self.dropped_stamps = 0
         self._inbox: deque[tuple[float, object]] = deque(maxlen=INBOX_LIMIT)
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # the inbox, between the link's thread and ours
+        self._filter_lock = threading.Lock()  # the filter, between frames and bridges
         self.first_aligned_s: float | None = None  # when a map's scale first converged
         self.rest = RestDetector(cfg)
         self.continuity = Continuity(cfg.gate_chi2_3dof)
@@ -110,6 +112,42 @@ class FusionEstimator:
     def on_frame(self, result: object, t_capture: float) -> VisionEstimate | None:
         """Fuse one tracker FrameResult captured at `t_capture` (our monotonic seconds); the
         estimate to send for that moment, or None."""
+        with self._filter_lock:
+            return self._on_frame(result, t_capture)
+
+    def bridge(self, t: float) -> VisionEstimate | None:
+        """An estimate for time t when no frame has come for a while (the tracker is busy, the
+        camera stalled), so the autopilot does not go without: the filter carried to t on the
+        IMU samples since its last frame, in a copy (the next frame continues from the filter
+        itself), with the covariance that grew meanwhile. None without a fresh IMU (nothing
+        real would carry it), before the filter started, or when it would be no news."""
+        with self._filter_lock:
+            self._drain()
+            f = self.filter
+            if f.t is None or t <= max(f.t, self._last_frame_t):
+                return None
+            carried = NavFilter(self.cfg)
+            carried.restore(f.snapshot())
+            for event in self.timeline.pending:
+                if event.kind == "imu" and event.t <= t:
+                    self._propagate(event.t, carried)
+                    carried.accel, carried.t_accel = event.data.accel, event.t
+            self._propagate(t, carried)
+            att = self.attitude.at(t) or self.attitude.latest
+            if att is None or not self._imu_fresh(t, carried):
+                return None
+            estimate = build_estimate(
+                carried, self.cfg, R_l_b=att.R_n_b, rot_cov=attitude_noise(self.cfg, "good"),
+                rates=att.rates, t_capture=t, t_source=math.nan, state="good",
+                reset_counter=self.reset_counter)
+            if estimate is None or horizontal_std(carried) > self.cfg.publish_max_std_m:
+                return None
+            if self.continuity.jumped(estimate):
+                self._bump_reset_counter()
+                estimate = dataclasses.replace(estimate, reset_counter=self.reset_counter)
+            return estimate
+
+    def _on_frame(self, result: object, t_capture: float) -> VisionEstimate | None:
         self._drain()
         if result.new_segment:
             self._segment += 1
@@ -253,13 +291,14 @@ class FusionEstimator:
         elif event.kind == "baro":
             m.update_baro(f, event.data.altitude)
 
-    def _imu_fresh(self, t: float) -> bool:
-        f = self.filter
+    def _imu_fresh(self, t: float, nav: NavFilter | None = None) -> bool:
+        f = nav or self.filter
         return f.accel is not None and t - f.t_accel <= self.cfg.imu_timeout_s
 
-    def _propagate(self, t: float) -> None:
-        f = self.filter
-        att = self.attitude.at(f.t) if self._imu_fresh(t) else None
+    def _propagate(self, t: float, nav: NavFilter | None = None) -> None:
+        """Carry the filter (or `nav`, a copy) to time t on the IMU, or at constant velocity."""
+        f = nav or self.filter
+        att = self.attitude.at(f.t) if self._imu_fresh(t, f) else None
         f.predict(t, f.accel if att is not None else None,
                   att.R_n_b if att is not None else None)
 
