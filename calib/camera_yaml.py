@@ -17,9 +17,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import yaml
-
 import numpy as np
+import yaml
 
 from calib.camera import CameraModel, canonical_model_name
 from calib.depth_camera import DepthSpec

@@ -30,10 +30,10 @@ import numpy as np
 from calib.camera import CameraModel
 from sdvl.errors import InputError
 from sim.sequence import Sequence
+from sim.synth.depth_sensor import DepthSensor, depth_sensor, measure_depth
 from sim.synth.effects import DARK_LEVEL, exposure_gain, finish, subframe_count
 from sim.synth.events import frame_times
 from sim.synth.presets import FlightSpec, preset_spec
-from sim.synth.depth_sensor import DepthSensor, depth_sensor, measure_depth
 from sim.synth.raycast import Surfaces, render_surfaces
 from sim.synth.sensors import (
     IMU_RATE,
