@@ -122,17 +122,35 @@ def _register(depth, params_d, params_c, T, width, height):
     return out
 
 
-def points_from_depth(depth: np.ndarray, camera: CameraModel, stride: int = 1,
+def decimate(depth: np.ndarray, camera: CameraModel, factor: int,
+             edge_rel: float = 0.05) -> tuple[np.ndarray, CameraModel]:
+    """The depth map averaged over factor x factor blocks (as a depth camera's decimation
+    filter), with the camera of the smaller image: a block's mean where at least half of it
+    is measured and its measurements span at most `edge_rel` of their mean (else 0: a block
+    across a depth edge would average two surfaces into a point on neither)."""
+    if factor == 1:
+        return depth, camera
+    h, w = (depth.shape[0] // factor) * factor, (depth.shape[1] // factor) * factor
+    blocks = depth[:h, :w].reshape(h // factor, factor, w // factor, factor)
+    valid = blocks > 0
+    count = valid.sum(axis=(1, 3))
+    mean = np.where(valid, blocks, 0).sum(axis=(1, 3)) / np.maximum(count, 1)
+    spread = (np.where(valid, blocks, -np.inf).max(axis=(1, 3))
+              - np.where(valid, blocks, np.inf).min(axis=(1, 3)))
+    ok = (count * 2 >= factor * factor) & (spread <= edge_rel * mean)
+    small = camera.scaled(1.0 / factor)
+    return np.where(ok, mean, 0).astype(np.float32), small
+
+
+def points_from_depth(depth: np.ndarray, camera: CameraModel,
                       rays: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Camera-frame 3D points (N, 3) of the measured pixels of a depth map (every `stride`-th
-    row and column), and their pixel indices (N, 2) as (column, row). `rays` (H, W, 3) are the
-    camera's bearings scaled to z = 1, if already computed (`unit_depth_rays`)."""
+    """Camera-frame 3D points (N, 3) of the measured pixels of a depth map, and their pixel
+    indices (N, 2) as (column, row). `rays` (H, W, 3) are the camera's bearings scaled to
+    z = 1, if already computed (`unit_depth_rays`)."""
     if rays is None:
         rays = unit_depth_rays(camera)
-    d = depth[::stride, ::stride]
-    rr, cc = np.nonzero(d > 0)
-    z = d[rr, cc].astype(np.float64)
-    rr, cc = rr * stride, cc * stride
+    rr, cc = np.nonzero(depth > 0)
+    z = depth[rr, cc].astype(np.float64)
     return rays[rr, cc] * z[:, None], np.column_stack([cc, rr])
 
 
