@@ -174,7 +174,7 @@ def fuse(sequence, poses: np.ndarray, mask: np.ndarray, settings: OccupancySetti
             print(f"\rfused {count}/{len(frames)} frames", end="", file=sys.stderr, flush=True)
     if not quiet:
         print(file=sys.stderr)
-    keys, logodds = occupancy.voxels()
+    _, logodds = occupancy.voxels()
     return occupancy, {
         "sequence": sequence.name, "frames_fused": len(times), "voxel_m": settings.voxel_m,
         "fuse_ms_median": float(np.median(times)) if times else None,

@@ -52,7 +52,7 @@ def test_weights_pull_the_fit_to_the_heavy_points():
 def test_ransac_finds_the_motion_among_outliers():
     rng = np.random.default_rng(2)
     R, t = random_motion(rng)
-    src = rng.uniform(-2, 2, (100, 3)) + (0, 0, 4)
+    src = rng.uniform(-2, 2, (100, 3)) + np.array([0.0, 0.0, 4.0])
     dst = src @ R.T + t
     outliers = rng.random(100) < 0.5
     dst[outliers] += rng.uniform(-1, 1, (outliers.sum(), 3))
@@ -67,7 +67,7 @@ def test_ransac_finds_the_motion_among_outliers():
 
 def test_motion_covariance_matches_monte_carlo():
     rng = np.random.default_rng(3)
-    src = rng.uniform(-1, 1, (40, 3)) + (0, 0, 3)
+    src = rng.uniform(-1, 1, (40, 3)) + np.array([0.0, 0.0, 3.0])
     sigma, xis, covs = 0.02, [], []
     for _ in range(400):
         dst = src + rng.normal(0, sigma, src.shape)
