@@ -175,12 +175,8 @@ def in_memory(sequence, max_frames: int | None):
     configuration replays the same images without decoding or rendering them again."""
     frames = list(sequence.frames(max_frames))
     images = [image for _, image in frames]
-    depth = None
-    if sequence.has_depth:
-        depth = [sequence.depth(i) for i in range(len(frames))].__getitem__
     return dataclasses.replace(sequence, timestamps=np.array([t for t, _ in frames]),
-                               image_loader=images.__getitem__, frame_iter=None,
-                               depth_loader=depth)
+                               image_loader=images.__getitem__, frame_iter=None)
 
 
 def warm_up(sequence, track_sequence, config_class, frames: int) -> None:

@@ -35,11 +35,11 @@ def logit(p: float) -> float:
 class OccupancySettings:
     """Voxel size (m) and the sensor model; probabilities as OctoMap's defaults."""
 
-    voxel_m: float = 0.05
-    prob_hit: float = 0.7
-    prob_miss: float = 0.4
-    clamp_min: float = 0.1192
-    clamp_max: float = 0.971
+    voxel_m: float = 0.05  # fine enough for a drone's clearance of tens of centimetres
+    prob_hit: float = 0.7  # P(occupied) of the voxel a measurement ends in
+    prob_miss: float = 0.4  # P(occupied) of a voxel a measurement's ray crosses
+    clamp_min: float = 0.1192  # a voxel never gets surer than this that it is free
+    clamp_max: float = 0.971  # ... or occupied, so the map can still change
     max_range_m: float = 0.0  # rays longer than this only free space up to it (0: no limit)
 
 
