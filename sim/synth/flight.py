@@ -76,10 +76,11 @@ class FrameRenderer:
 
     def surfaces(self, t: float) -> Surfaces:
         """What the camera sees at time t, without effects (the last one is kept)."""
-        if self._last is None or self._last[0] != t:
+        last = self._last  # read once: another thread may replace it meanwhile
+        if last is None or last[0] != t:
             pose = camera_poses(self.spec, np.array([t]))[0]
-            self._last = (t, render_surfaces(self.spec.scene, self.camera, pose, t))
-        return self._last[1]
+            last = self._last = (t, render_surfaces(self.spec.scene, self.camera, pose, t))
+        return last[1]
 
     def ideal(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Image (float32) and depth without effects at time t."""
