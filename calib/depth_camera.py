@@ -130,16 +130,28 @@ def decimate(depth: np.ndarray, camera: CameraModel, factor: int,
     across a depth edge would average two surfaces into a point on neither)."""
     if factor == 1:
         return depth, camera
-    h, w = (depth.shape[0] // factor) * factor, (depth.shape[1] // factor) * factor
-    blocks = depth[:h, :w].reshape(h // factor, factor, w // factor, factor)
-    valid = blocks > 0
-    count = valid.sum(axis=(1, 3))
-    mean = np.where(valid, blocks, 0).sum(axis=(1, 3)) / np.maximum(count, 1)
-    spread = (np.where(valid, blocks, -np.inf).max(axis=(1, 3))
-              - np.where(valid, blocks, np.inf).min(axis=(1, 3)))
-    ok = (count * 2 >= factor * factor) & (spread <= edge_rel * mean)
     small = camera.scaled(1.0 / factor)
-    return np.where(ok, mean, 0).astype(np.float32), small
+    out = _decimate(np.ascontiguousarray(depth, dtype=np.float32), factor, edge_rel)
+    return out, small
+
+
+@numba.njit(cache=True, nogil=True)
+def _decimate(depth, k, edge_rel):
+    h, w = depth.shape[0] // k, depth.shape[1] // k
+    out = np.zeros((h, w), np.float32)
+    for r in range(h):
+        for c in range(w):
+            n, total, lo, hi = 0, 0.0, np.inf, -np.inf
+            for i in range(r * k, r * k + k):
+                for j in range(c * k, c * k + k):
+                    z = depth[i, j]
+                    if z > 0.0:  # not NaN, not a hole
+                        n += 1
+                        total += z
+                        lo, hi = min(lo, z), max(hi, z)
+            if 2 * n >= k * k and hi - lo <= edge_rel * total / n:
+                out[r, c] = total / n
+    return out
 
 
 def points_from_depth(depth: np.ndarray, camera: CameraModel,

@@ -112,6 +112,23 @@ def test_decimate_averages_blocks_and_drops_edges():
     assert cam.cx == pytest.approx(1.5) and cam.fx == pytest.approx(4.0)
 
 
+def test_decimate_matches_the_slow_reference():
+    rng = np.random.default_rng(6)
+    depth = rng.uniform(1.97, 2.03, (24, 32)).astype(np.float32)
+    depth[rng.random((24, 32)) < 0.3] = 0.0
+    depth[:, 20:] += 3.0 * (rng.random((24, 12)) < 0.1)
+    fast, _ = decimate(depth, CameraModel(32, 24, 30.0, 30.0, 15.5, 11.5), 4)
+    slow = np.zeros((6, 8), np.float32)
+    for r in range(6):
+        for c in range(8):
+            block = depth[4 * r:4 * r + 4, 4 * c:4 * c + 4]
+            z = block[block > 0]
+            if z.size >= 8 and z.max() - z.min() <= 0.05 * z.mean():
+                slow[r, c] = z.mean()
+    np.testing.assert_allclose(fast, slow, rtol=1e-6)
+    assert 0 < (fast > 0).sum() < 48
+
+
 def test_associate_pairs_nearest_once_within_tolerance():
     frames = np.array([0.0, 0.033, 0.066, 0.1, 0.5])
     depth = np.array([0.004, 0.030, 0.040, 0.098, 0.47])
