@@ -145,7 +145,7 @@ def _decimate(depth, k, edge_rel):
             for i in range(r * k, r * k + k):
                 for j in range(c * k, c * k + k):
                     z = depth[i, j]
-                    if z > 0.0:  # not NaN, not a hole
+                    if 0.0 < z < np.inf:  # not a hole (0, NaN)
                         n += 1
                         total += z
                         lo, hi = min(lo, z), max(hi, z)

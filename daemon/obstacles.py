@@ -87,7 +87,7 @@ class ObstacleDistances:
         """The sectors seen in a depth map (float32 m, 0/NaN = none) captured at time t;
         `roll_pitch` (rad, the autopilot's attitude) levels the obstacle band."""
         s = self.settings
-        small, camera = decimate(np.nan_to_num(depth), self.camera, s.decimate)
+        small, camera = decimate(depth, self.camera, s.decimate)
         points, _ = points_from_depth(small, camera, self._rays)
         body = points @ self.T_b_c[:3, :3].T + self.T_b_c[:3, 3]
         if roll_pitch is not None:

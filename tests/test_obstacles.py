@@ -94,6 +94,7 @@ def test_the_floor_is_not_an_obstacle_once_levelled():
 def test_far_measurements_say_no_obstacle_and_near_ones_the_minimum():
     depth = np.full((240, 320), 9.0, np.float32)
     depth[:, 150:170] = 0.1  # a pole closer than the camera's minimum range
+    depth[:40] = np.nan  # no measurement, as some drivers say it
     od = ObstacleDistances(CAMERA, FORWARD, ObstacleSettings(min_m=0.3, max_m=8.0))
     scan = od.scan(depth, 0.0)
     assert scan.distances_cm[0] == 30  # read as the minimum, which ArduPilot keeps
