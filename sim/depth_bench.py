@@ -15,8 +15,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 from calib.depth_camera import decimate, points_from_depth, unit_depth_rays
 from daemon.map_files import MAP_SUFFIXES, write_map
 from daemon.obstacles import ObstacleDistances, ObstacleSettings
@@ -78,8 +76,8 @@ def print_files(occupancy: OccupancyMap) -> None:
             path = Path(folder) / f"map{suffix}"
             start = time.perf_counter()
             write_map(occupancy, path)
-            print(f"write {suffix:<4}         {ms(start):9.0f} ms {path.stat().st_size / 1024:9.0f} "
-                  "KiB")
+            size = path.stat().st_size / 1024
+            print(f"write {suffix:<4}         {ms(start):9.0f} ms {size:9.0f} KiB")
 
 
 def ms(start: float) -> float:

@@ -186,7 +186,7 @@ def fuse(sequence, poses: np.ndarray, mask: np.ndarray, settings: OccupancySetti
 def scene_score(sequence, occupancy: OccupancyMap, mask: np.ndarray, factor: int,
                 every: int):
     """MapScore of the map against the synthetic scene (see sim.map_scoring)."""
-    from sim.map_scoring import score_map
+    from sim.map_scoring import score_map, seen_voxels
 
     renderer = sequence.image_loader
     if "preset" not in sequence.extras or not hasattr(renderer, "surfaces"):
@@ -195,6 +195,7 @@ def scene_score(sequence, occupancy: OccupancyMap, mask: np.ndarray, factor: int
     sensor = sequence.extras["depth_sensor"]
     seen, rays = [], None
     truth = sequence.groundtruth
+    poses = truth.matrices()
     for i in np.flatnonzero(mask)[::every]:
         t = float(sequence.timestamps[i])
         depth = renderer.surfaces(t).depth.copy()
@@ -202,8 +203,8 @@ def scene_score(sequence, occupancy: OccupancyMap, mask: np.ndarray, factor: int
         depth, camera = decimate(depth, sequence.camera, factor)
         rays = unit_depth_rays(camera) if rays is None else rays
         points, _ = points_from_depth(depth, camera, rays)
-        T = truth.matrices()[np.searchsorted(truth.t, t)]
-        seen.append(points @ T[:3, :3].T + T[:3, 3])
+        T = poses[np.searchsorted(truth.t, t)]
+        seen.append(seen_voxels(points @ T[:3, :3].T + T[:3, 3], occupancy.settings.voxel_m))
     scene = renderer.spec.scene.quads_at(float(sequence.timestamps[0]))
     return score_map(occupancy.occupied(), scene, np.vstack(seen), occupancy.settings.voxel_m)
 

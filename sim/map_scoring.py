@@ -76,18 +76,32 @@ class MapScore:
         return asdict(self)
 
 
-def score_map(occupied: np.ndarray, quads: QuadList, seen_points: np.ndarray,
+def seen_voxels(points: np.ndarray, voxel_m: float) -> np.ndarray:
+    """The seen-surface voxels of surface points (N, 3, world): (M, 8) packed keys, one row
+    per voxel a point lies in, with the voxels it touches (see `touching`)."""
+    seen = touching(points, voxel_m)
+    _, first = np.unique(seen[:, 0], return_index=True)
+    return seen[first]
+
+
+def score_map(occupied: np.ndarray, quads: QuadList, seen: np.ndarray,
               voxel_m: float) -> MapScore:
     """Score occupied voxels (integer coordinates (M, 3)) against the scene's quads and the
-    surface points the camera saw (N, 3, world)."""
+    surfaces the camera saw (`seen_voxels` rows; several frames' may be stacked)."""
+    _, first = np.unique(seen[:, 0], return_index=True)
+    seen = seen[first]
     occ = np.unique(pack(occupied))
     margin = 2 * voxel_m
-    both = np.vstack([(occupied + 0.5) * voxel_m, seen_points])
-    truth = surface_voxels(quads, voxel_m, both.min(axis=0) - margin, both.max(axis=0) + margin)
+    corners = np.vstack([(occupied + 0.5) * voxel_m, unpack(seen[:, 0]) * voxel_m])
+    truth = surface_voxels(quads, voxel_m, corners.min(axis=0) - margin,
+                           corners.max(axis=0) + margin)
     on_surface = int(np.isin(occ, truth).sum())
-    seen = touching(seen_points, voxel_m)
-    _, first = np.unique(seen[:, 0], return_index=True)  # one per voxel the points are in
-    seen = seen[first]
     recalled = int(np.isin(seen, occ).any(axis=1).sum())
     return MapScore(on_surface / max(len(occ), 1), recalled / max(len(seen), 1), len(occ),
                     on_surface, len(seen), recalled)
+
+
+def unpack(keys: np.ndarray) -> np.ndarray:
+    """Integer voxel coordinates (N, 3) of packed keys (the inverse of `pack`)."""
+    mask = (1 << 21) - 1
+    return np.column_stack([(keys >> 42) & mask, (keys >> 21) & mask, keys & mask]) - _BIAS
