@@ -12,11 +12,10 @@ tracker's world and NED, with the anchor cloned from the vehicle position when a
 (so a new map keeps the vehicle where it was). theta is folded into R_nom after every update.
 
 The tracker's errors are not white at the frame rate. Over a flat scene its tilt trades off
-against its translation: a tilt error of 1-3 degrees wanders over about a second, and its
-position error follows it (height x tilt: tenths of a metre; on the synthetic flights at 6-12 m
-the tilt explains 60-75 % of the position error that is left after a Sim(3) fit of the whole
-map). Fused as white noise, that is averaged over 30 frames a second as if independent, and the
-filter becomes several times too confident, scale included. delta is that tilt error, a
+against its translation: a tilt error wanders over about a second, and its position error
+follows it (height x tilt), most of what is left after a Sim(3) fit of the whole map. Fused as
+white noise, that is averaged over 30 frames a second as if independent, and the filter becomes
+several times too confident, scale included. delta is that tilt error, a
 first-order Gauss-Markov process (vo_tilt_error_std_deg, vo_error_time_s); its effect on the
 position is the tracker's own regression of position on rotation (its covariance), and the
 autopilot's attitude observes it.
@@ -211,8 +210,7 @@ class NavFilter:
 
     def forget_scale(self) -> None:
         """Back to the wide prior's uncertainty: from there the EKF's linearised fixes settle
-        far off and become sure of it before the estimate gets there (on survey-down without
-        a rangefinder, 24 % low sure to 3 %; IMU only, 38 sigma off within 2 s); the fits of
+        far off and become sure of it before the estimate gets there; the fits of
         climb_scale.py and accel_scale.py give it a start without linearisation."""
         P = self.ekf.P
         P[LOG_SCALE, :] = 0.0
@@ -225,8 +223,7 @@ class NavFilter:
         position, so no filter lag is frozen in. The anchor is the point of N the map calls
         p_w0, not where the camera truly was then: the tracker's noise at the old anchor and
         the new one cancel along the chain, so moving adds no noise (adding the frame's noise
-        at every move made the anchor a random walk of it: survey-down's position NEES
-        0.16-0.84 with errors a third of the std)."""
+        at every move would make the anchor a random walk of it)."""
         x, P = self.ekf.x, self.ekf.P
         v = self.scale * (self.R_nom @ (np.asarray(p_w, float) - self.p_w0))
         J = np.zeros((3, DIM))
