@@ -39,6 +39,7 @@ class SimOptions:
     trajectory: Trajectory | None = None
     imu_noise: ImuNoise = field(default_factory=ImuNoise)
     seed: int = 0
+    absent: frozenset[str] = frozenset()  # sensor messages this vehicle has no sensor for
 
     def stored_params(self) -> dict[str, float]:
         return {**self.params, **self.param_overrides}
