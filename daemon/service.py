@@ -42,6 +42,8 @@ from sdvl.errors import InputError
 
 log = logging.getLogger("sdvl.service")
 HOUSEKEEPING_S = 0.05
+BRIDGE_AFTER_S = 0.12  # PX4 restarts vision fusion after 200 ms between samples (EV_MAX_INTERVAL)
+BRIDGE_MAX_S = 1.0  # a longer gap is an outage the autopilot's own failsafe must see
 THREAD_JOIN_S = 0.7
 # READY waits this long for a first usable frame, so a calibration that does not fit the frames
 # is reported (exit code 2) before systemd is told the service runs; well under TimeoutStartSec
@@ -63,6 +65,7 @@ class ServiceStats:
     skipped_stale: int = 0
     skipped_duplicate: int = 0
     skipped_not_finite: int = 0
+    bridged: int = 0  # estimates carried over a stall of the camera or tracker
     timesync_replies: int = 0
     message_errors: Counter = field(default_factory=Counter)  # "ATTITUDE: ValueError" -> n
     send_latency_s: deque = field(default_factory=lambda: deque(maxlen=100))
@@ -108,6 +111,7 @@ class Service:
         self.link = open_link(mav.link, self.codec.feed)
         self.streams = self._stream_keeper()
         self._last_sent_t: float | None = None
+        self._last_frame_sent_t: float | None = None  # capture time of the last tracked frame sent
         self._reset_counter = 0
         self._stop = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -270,17 +274,32 @@ class Service:
         self.stats.frames += 1
         self._set_state(self.health.on_frame(time.monotonic(), tf.t_capture,
                                              tf.result.quality))
-        sent = False
-        if tf.estimate is not None:
-            if tf.estimate.reset_counter != self._reset_counter:
-                self._reset_counter = tf.estimate.reset_counter
-                log.info("new map segment: reset_counter %d", self._reset_counter)
-                self.texts.report(f"new map, reset {self._reset_counter}", time.monotonic(),
-                                  mavlink2.MAV_SEVERITY_NOTICE)
-            sent = self._send_estimate(tf.estimate)
+        sent = tf.estimate is not None and self._deliver(tf.estimate)
+        if sent:
+            self._last_frame_sent_t = tf.estimate.t_capture
         if self.on_tracked is not None:
             self.on_tracked(tf, sent)
         self.tracking.gate.done(tf.t_source)  # the tracker's mapping may go on with this frame
+
+    def _bridge(self, now: float) -> None:
+        """When no tracked frame's estimate has gone out for BRIDGE_AFTER_S (a busy tracker, a
+        stalled camera), send the estimator's carried-forward one each tick, for at most
+        BRIDGE_MAX_S."""
+        last = self._last_frame_sent_t
+        if last is None or not BRIDGE_AFTER_S <= now - last <= BRIDGE_MAX_S:
+            return
+        estimate = self.estimator.bridge(now)
+        if estimate is not None and self._deliver(estimate):
+            self.stats.bridged += 1
+
+    def _deliver(self, e: VisionEstimate) -> bool:
+        """Say a new map segment when reset_counter changes, then send; True when sent."""
+        if e.reset_counter != self._reset_counter:
+            self._reset_counter = e.reset_counter
+            log.info("new map segment: reset_counter %d", self._reset_counter)
+            self.texts.report(f"new map, reset {self._reset_counter}", time.monotonic(),
+                              mavlink2.MAV_SEVERITY_NOTICE)
+        return self._send_estimate(e)
 
     def _send_estimate(self, e: VisionEstimate) -> bool:
         """Send the vision message(s) for one estimate unless it is a duplicate, too soon
@@ -389,6 +408,7 @@ class Service:
             for event in self.watch.check(now):
                 self._autopilot_event(event, now)
             self.streams.tick(now)
+            self._bridge(now)
             if self.origin is not None:
                 target = ((self.watch.system_id, self.watch.component_id)
                           if self.watch.alive else None)
