@@ -39,6 +39,7 @@ from daemon.fusion.alignment import AlignmentGate
 from daemon.fusion.attitude import AttitudeTrack
 from daemon.fusion.clock import ClockMap
 from daemon.fusion.config import FusionConfig
+from daemon.fusion.imu_gate import ImuGate
 from daemon.fusion.map_fusion import FrameInput, MapFusion, Readings, frame_input
 from daemon.fusion.output import Continuity, attitude_noise, build_estimate, horizontal_std
 from daemon.fusion.rest import RestDetector
@@ -82,6 +83,7 @@ class FusionEstimator:
         self.timeline = Timeline(cfg.history_s)
         self.sources: dict[str, str] = {}  # "imu"/"baro" -> the message type fused
         self._choices: dict[str, SourceChoice] = {}
+        self.imu_gate = ImuGate(report)
         self.dropped_stamps = 0
         self._inbox: deque[tuple[float, object]] = deque(maxlen=INBOX_LIMIT)
         self._lock = threading.Lock()  # the inbox, between the link's thread and ours
@@ -248,8 +250,9 @@ class FusionEstimator:
                 self.rest.on_rates(t, sample.rates)
                 self.timeline.add(t, "attitude", None)  # late ones replay what used it
             elif isinstance(sample, Imu) and self.cfg.use_imu:
-                self.rest.on_imu(t, sample.accel)
-                self._add_stream("imu", sample, IMU_PRIORITY)
+                if self.imu_gate.admit(sample.source, remote, t, sample.accel):
+                    self.rest.on_imu(t, sample.accel)
+                    self._add_stream("imu", sample, IMU_PRIORITY)
             elif isinstance(sample, LocalPosition):
                 self._autopilot_z = (t, float(sample.position[2]))
             elif isinstance(sample, Range) and self.cfg.use_rangefinder:

@@ -1,9 +1,10 @@
 """Which stream of one kind (IMU, barometer) the filter fuses when the autopilot sends several.
 
-A stream is a candidate once it streams steadily: at least STEADY_SAMPLES samples within the
-last WINDOW_S seconds and the newest no older than MAX_GAP_S. The stream fused is kept while it
-is steady; a preferred steady stream (lower priority number, sensors.py) replaces it, and when it
-stops the best steady one takes over. A stray message (a corrupt packet, another stream's single
+The first stream seen is fused at once. A stream is a candidate once it streams steadily: at
+least STEADY_SAMPLES samples within the last WINDOW_S seconds and the newest no older than
+MAX_GAP_S. The stream fused is kept while it is steady; a preferred steady stream (lower
+priority number, sensors.py) replaces it, and when it is not steady the best steady one takes
+over. A stray message (a corrupt packet, another stream's single
 sample) is never steady, so it cannot take the filter away from the stream that is.
 """
 
@@ -36,7 +37,9 @@ class SourceChoice:
         times.append(t)
         while times and times[0] < self._now - WINDOW_S:
             times.popleft()
-        if source != self.current:
+        if self.current is None and source in self.priority:
+            self._switch(source, "first stream")  # no waiting: a stray one is replaced below
+        elif source != self.current:
             self._reconsider()
         return source == self.current
 
@@ -55,8 +58,9 @@ class SourceChoice:
         current_ok = self.current is not None and self.steady(self.current)
         if current_ok and self.priority[best] >= self.priority[self.current]:
             return
-        why = "preferred" if current_ok else ("first steady stream" if self.current is None
-                                               else f"{self.current} stopped")
-        log.info("fusion: %s from %s (%s)", self.kind, best, why)
-        self.current = best
+        self._switch(best, "preferred" if current_ok else f"{self.current} not steady")
+
+    def _switch(self, source: str, why: str) -> None:
+        log.info("fusion: %s from %s (%s)", self.kind, source, why)
+        self.current = source
         self.switches += 1

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
+from daemon.fusion.sensors import remote_time
 from sim import fusion_sim
 from sim.faults.harness import FaultScore, Packet, Stream, run_stream, score
 from sim.faults.mutate import Packer, mutate_fields, pack_or_none, shift_time
@@ -138,10 +139,11 @@ def stray_highres(flight, rng, window):
 
 
 def odd_stamps(seconds: float, count: int = 5) -> Callable:
-    """`count` messages in the window with their boot stamp `seconds` off (a false reboot)."""
+    """`count` stamped messages in the window with their boot stamp `seconds` off (a false
+    reboot)."""
     def make(flight, rng, window):
         items = clean_items(flight)
-        during = _during(items, window, None)
+        during = [i for i in _during(items, window, None) if remote_time(items[i].msg)]
         for i in rng.choice(during, size=count, replace=False):
             items[i].msg = shift_time(items[i].msg, seconds)
         return to_stream(flight, items, window, count)
