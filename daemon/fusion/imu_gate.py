@@ -6,9 +6,9 @@ stream (message type) is checked on its own:
 
 - duplicate: a stream never sends two samples with one stamp, so a second one is a corrupt or
   forged copy (late samples are fine: the filter replays them in order);
-- spike: an acceleration further than SPIKE_FLOOR plus SPIKE_SIGMAS robust deviations from the
-  median of the stream's last WINDOW samples is no motion a vehicle makes in one sample; a real
-  change lasts, moves the median within half the window and passes from then on;
+- spike: an acceleration further from the median of the stream's last WINDOW samples than
+  SPIKE_FLOOR (or SPIKE_SIGMAS robust deviations, for a noisier stream) is no motion a vehicle
+  makes in one sample; a real change lasts, moves the median within half the window and passes;
 - health: a stream that fails more than DROP_SHARE of its samples over DROP_WINDOW_S is dropped
   (the filter goes on without an IMU, its covariance growing instead of its estimate jumping),
   said once, until it has passed every sample for READMIT_S.
@@ -71,7 +71,7 @@ class ImuGate:
         recent = np.asarray(s.recent)
         median = np.median(recent, axis=0)
         spread = MAD_TO_SIGMA * float(np.median(np.linalg.norm(recent - median, axis=1)))
-        return float(np.linalg.norm(accel - median)) > SPIKE_FLOOR + SPIKE_SIGMAS * spread
+        return float(np.linalg.norm(accel - median)) > max(SPIKE_FLOOR, SPIKE_SIGMAS * spread)
 
     def _healthy(self, source: str, s: _Stream, t: float, passed: bool) -> bool:
         """Keep the verdicts of the last DROP_WINDOW_S; drop or take back the stream."""
