@@ -54,6 +54,10 @@ class Estimator(Protocol):
     def on_autopilot_message(self, msg: object) -> None:
         """Consume one decoded MAVLink message from the autopilot (asyncio thread)."""
 
+    def bridge(self, t: float) -> VisionEstimate | None:
+        """An estimate for time t when no frame has given one for a while (asyncio thread);
+        None when nothing but a frame could give one."""
+
 
 def _finite(*arrays: np.ndarray) -> bool:
     return all(np.all(np.isfinite(a)) for a in arrays)
@@ -72,6 +76,10 @@ class PassThroughEstimator:
         self._anchor: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # R_L_w, p_w0, p_L0
         self._last: VisionEstimate | None = None
         self._previous: tuple[np.ndarray, np.ndarray, float | None] = (np.zeros(3), np.eye(3), None)
+
+    def bridge(self, t: float) -> VisionEstimate | None:
+        """Nothing between frames: without an IMU filter there is nothing to carry a pose."""
+        return None
 
     def on_autopilot_message(self, msg: object) -> None:
         """Keeps the latest ATTITUDE roll and pitch to level the local frame of a new segment."""

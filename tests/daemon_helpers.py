@@ -60,11 +60,12 @@ class RunningService:
     """A Service on its own event loop thread; `stop()` returns its exit code."""
 
     def __init__(self, config: Config, tracker: FakeTracker | None = None, source=None,
-                 **kwargs):
+                 make_tracker=None, **kwargs):
         self.tracker = tracker or FakeTracker()
         cam = config.camera
         self.source = source or TestPatternSource(cam.width, cam.height, cam.fps)
-        self.service = Service(config, self.source, lambda frame: self.tracker, **kwargs)
+        self.service = Service(config, self.source, make_tracker or (lambda frame: self.tracker),
+                               **kwargs)
         self.loop = asyncio.new_event_loop()
         self.exit_code: int | None = None
         self.thread = threading.Thread(target=self._run, daemon=True)
