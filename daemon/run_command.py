@@ -151,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
 def _start(args: argparse.Namespace, signals: EarlySignals, notifier: Notifier) -> int:
     from daemon import numba_cache
     from daemon.config import load_config
-    from daemon.service import Service
+    from daemon.service import Service, prefer_handoffs
 
     config = load_config(args.config)
     setup_logging(config.service.log_level)
@@ -161,6 +161,7 @@ def _start(args: argparse.Namespace, signals: EarlySignals, notifier: Notifier) 
     numba_cache.prepare()
     service = Service(config, source, tracker_factory(config, camera), notifier=notifier,
                       size_ok=lambda width, height: fit_camera(camera, width, height))
+    prefer_handoffs()
     return asyncio.run(serve(service, signals, lambda: load_config(args.config)))
 
 

@@ -52,6 +52,13 @@ FIRST_FRAME_WAIT_S = 20.0
 # estimate handed between capture, tracking and the loop must not wait for the mapping thread.
 GIL_SWITCH_INTERVAL_S = 0.0005
 EXIT_FAULT, EXIT_CONFIG = 1, 2
+
+
+def prefer_handoffs() -> None:
+    """Process-wide: threads hand the GIL over within GIL_SWITCH_INTERVAL_S. Called once by
+    whatever hosts a Service in real time (sdvl run, the replay, the latency bench, the soak),
+    not by the Service, which tests also run inside other processes."""
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
 RELOADABLE = ("service.log_level", "mavlink.statustext_interval_s")
 
 
@@ -140,7 +147,6 @@ class Service:
     async def run(self) -> int:
         """Serve until stopped; the exit code (0 stopped, 1 fault, 2 configuration)."""
         self._loop = asyncio.get_running_loop()
-        sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
         self.link.start()
         self._make_threads()
         if not self.source.live:  # a replay as fast as possible must not outrun the link

@@ -25,7 +25,7 @@ import numpy as np
 
 from daemon.config import Config, replace
 from daemon.run_command import tracker_factory
-from daemon.service import Service
+from daemon.service import Service, prefer_handoffs
 from sim.autopilot import SimOptions
 from sim.datasets.layout import SensorSamples
 from sim.replay.autopilot_process import AutopilotProcess
@@ -36,8 +36,9 @@ from sim.replay.flight import (
     sensor_streams,
     vehicle_trajectory,
 )
-from sim.replay.harness import FirstFrames, ReplaySource, warm_up
+from sim.replay.harness import ReplaySource, warm_up
 from sim.replay.prerender import prerendered
+from sim.replay.replay_run import FirstFrames
 from sim.sequence import ImuSamples, Sequence
 from sim.trajectory import Trajectory
 
@@ -154,6 +155,7 @@ def _serve_service(sequence: Sequence, config: Config, frames: int,
         config = replace(config, mavlink={"link": autopilot.url})
         source = ReplaySource(FirstFrames(sequence, frames), True, 0.0, autopilot.frame_released)
         service = Service(config, source, make_tracker)
+        prefer_handoffs()
         sampler.start()
         code = asyncio.run(service.run())
         sampler.stopping.set()

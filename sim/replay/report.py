@@ -14,8 +14,8 @@ from sim.metrics import Aligned, align_trajectories, evaluate, interpolate
 from sim.replay.autopilot_process import VisionMessage
 from sim.replay.autopilot_scores import AUTOPILOT_KEYS, autopilot_scores
 from sim.replay.fusion_scores import FUSION_KEYS, fusion_scores, velocity_at
-from sim.replay.harness import ReplayRun
 from sim.replay.recording import stats_ms
+from sim.replay.replay_run import ReplayRun
 from sim.trajectory import Trajectory, write_tum
 
 STAMP_TOLERANCE_S = 1e-4  # time_usec is t_capture in whole microseconds
