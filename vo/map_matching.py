@@ -134,9 +134,7 @@ class MapMatcher:
             usable |= (pts.status == CANDIDATE) & (pts.n_updates >= cfg.candidate_min_updates)
         idx = np.flatnonzero(usable)
         search = pts.status[idx] == CANDIDATE
-        return self.reprojector.run(self.camera.params, frame, pts, self.map.obs, idx, search,
-                                    self.map.kf_pyr, self.map.kf_T_c_w, cfg,
-                                    self.map.describe_points)
+        return self.reprojector.run(frame, self.map, idx, search)
 
     def _errors(self, frame: Frame, ids: np.ndarray, uv: np.ndarray) -> np.ndarray:
         """Reprojection errors (normalised plane) of matches at frame's pose."""

@@ -65,7 +65,7 @@ class Tracker:
         else:
             self.mapping = InlineMapping()
         self._frame_id = 0
-        self.reprojector = Reprojector(camera, self.config.grid_cell, self.config.seed)
+        self.reprojector = Reprojector(camera, self.config)
         self._reset()
 
     # ------------------------------------------------------------------ lifecycle
