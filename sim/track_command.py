@@ -53,18 +53,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
-def resolve_sequence(name: str, size: tuple[int, int] | None = None):
+def resolve_sequence(name: str, size: tuple[int, int] | None = None, seed: int | None = None,
+                     textures: str | None = None):
     """Open a sequence by path, or by name inside the shared data folder; `size` renders a
-    synthetic preset at another image size."""
+    synthetic preset at another image size, `seed` flies another of its worlds, `textures`
+    ('auto', 'procedural' or a folder, as for sdvl render) paints it."""
     from sim.datasets import open_sequence
 
-    if size is not None:
+    if size is not None or seed is not None or textures is not None:
         from sim.synth.flight import synthetic_sequence
         from sim.synth.presets import PRESETS
 
         if name not in PRESETS:
-            raise InputError(f"--size is for synthetic presets ({', '.join(PRESETS)})")
-        return synthetic_sequence(name, size=size)
+            raise InputError(f"an image size or world seed is for synthetic presets "
+                             f"({', '.join(PRESETS)}), not {name}")
+        return synthetic_sequence(name, size=size, seed=seed or 0, textures=textures or "auto")
     path = Path(name)
     if not path.exists():
         data = Path(os.environ.get("SDVL_DATA", Path(__file__).resolve().parents[2]

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from sdvl.errors import InputError
+from sim.track_sweep import Variant, format_summary, summary, variants
 
 DEFAULT_SEQUENCES = ("vamr_ex01_checkerboard736", "kitti00_first200", "tum_fr1_rpy")
 # the eight configurations of thesis 7.1 (Config1..Config8): matcher x local BA x outlier
@@ -52,8 +53,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="run the configurations N rounds per sequence and print each "
                              "round's tracking p95 relative to the first configuration, then "
                              "the median ratio (timing on a shared machine is noisy)")
-    parser.add_argument("--seed", type=int, default=None, metavar="N",
-                        help="the tracker's random seed (default: the configuration's)")
+    parser.add_argument("--seeds", default=None, metavar="LIST",
+                        help="the tracker's random seeds ('0-9', '1,3'): every configuration "
+                             "once per seed (default: the configuration's seed)")
+    parser.add_argument("--world-seeds", default=None, metavar="LIST",
+                        help="synthetic presets: fly each world seed ('0-2'; default 0)")
+    parser.add_argument("--size", default=None, metavar="WxH",
+                        help="synthetic presets at this image size (default: the preset's)")
+    parser.add_argument("--textures", default=None, metavar="auto|procedural|DIR",
+                        help="synthetic presets painted with these textures (as for sdvl "
+                             "render; default auto)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE[,VALUE...]",
+                        help="a tracker parameter on top of every configuration (repeatable); "
+                             "several values make a variant per value, compared seed by seed "
+                             "with the first in a summary at the end")
+    parser.add_argument("--mapping-period", type=int, default=None, metavar="P",
+                        help="emulated slow mapping, as for sdvl track")
     parser.add_argument("--max-frames", type=int, default=None, metavar="N")
     parser.add_argument("--warm-up", type=int, default=WARM_UP_FRAMES, metavar="N",
                         help="first track N frames of the first sequence untimed, with every "
@@ -63,12 +78,55 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Track every sequence with every configuration; print the table row by row. A run that
-    fails is reported in its row and the table goes on (exit status 1 at the end)."""
-    from sim.track_command import resolve_sequence, track_sequence
+    """Track every sequence with every configuration (and variant, and seed); print the table
+    row by row, then the summary of a sweep. A run that fails is reported in its row and the
+    table goes on (exit status 1 at the end)."""
+    from sim.track_command import track_sequence
     from vo.config import TrackerConfig
 
-    names = config_names(args.configs)
+    plan = _plan(args)
+    if not args.json:
+        print(header(), flush=True)
+    rows: list[dict] = []
+    first = True
+    for seq_name, world, sequence in _sequences(args):
+        if first and args.warm_up > 0:
+            warm_up(sequence, track_sequence, TrackerConfig, args.warm_up)
+        first = False
+        ratios = []
+        for round_ in range(1, args.repeat + 1):
+            round_rows = []
+            for name, variant, seed in plan:
+                parameters = {**base_parameters(seq_name), **CONFIGS[name],
+                              **dict(variant.parameters)}
+                if seed is not None:
+                    parameters["seed"] = seed
+                row = table_run(seq_name, name, sequence, TrackerConfig.from_dict(parameters),
+                                args, track_sequence)
+                row.update(variant=variant.label, seed=seed, world_seed=world)
+                round_rows.append(row)
+                print(json.dumps(row) if args.json else format_row(row), flush=True)
+            rows += round_rows
+            if args.repeat > 1:
+                ratios.append(p95_ratios(round_rows))
+                print(format_ratios(seq_name, f"round {round_}", plan[0][0], ratios[-1],
+                                    args.json), flush=True)
+        if args.repeat > 1:
+            print(format_ratios(seq_name, f"median of {args.repeat}", plan[0][0],
+                                median_ratios(ratios), args.json), flush=True)
+        if not args.json and seq_name in ORIGINAL and world is None:
+            tracked, ate, ms = ORIGINAL[seq_name]
+            print(f"{seq_name:<26} {'original C++ (ORB)':<22} {tracked:>9} {ate:>11} "
+                  f"{'':>4} {ms:>9}", flush=True)
+    _print_summary(rows, plan, args.json)
+    return 1 if any("error" in r for r in rows) else 0
+
+
+def _plan(args: argparse.Namespace) -> list[tuple[str, Variant, int | None]]:
+    """(configuration, variant, tracker seed) of every run on a sequence, checking the
+    options."""
+    from sim.replay.seeds import parse_seeds
+
     if args.max_frames is not None and args.max_frames <= 0:
         raise InputError("--max-frames must be positive")
     if args.warm_up < 0:
@@ -78,37 +136,39 @@ def run(args: argparse.Namespace) -> int:
     if args.paced and not args.threaded:
         raise InputError("--paced needs --threaded (without a mapping thread nothing runs "
                          "between frames)")
-    sequences = [(Path(name).name, resolve_sequence(name)) for name in args.sequences]
-    if not args.json:
-        print(header(), flush=True)
-    failed = 0
-    for i, (seq_name, sequence) in enumerate(sequences):
-        sequence = in_memory(sequence, args.max_frames)
-        if i == 0 and args.warm_up > 0:
-            warm_up(sequence, track_sequence, TrackerConfig, args.warm_up)
-        ratios = []
-        for round_ in range(1, args.repeat + 1):
-            rows = []
-            for name in names:
-                parameters = {**base_parameters(seq_name), **CONFIGS[name]}
-                if args.seed is not None:
-                    parameters["seed"] = args.seed
-                rows.append(table_run(seq_name, name, sequence, TrackerConfig.from_dict(
-                    parameters), args, track_sequence))
-                failed += "error" in rows[-1]
-                print(json.dumps(rows[-1]) if args.json else format_row(rows[-1]), flush=True)
-            if args.repeat > 1:
-                ratios.append(p95_ratios(rows))
-                print(format_ratios(seq_name, f"round {round_}", names[0], ratios[-1],
-                                    args.json), flush=True)
-        if args.repeat > 1:
-            print(format_ratios(seq_name, f"median of {args.repeat}", names[0],
-                                median_ratios(ratios), args.json), flush=True)
-        if not args.json and seq_name in ORIGINAL:
-            tracked, ate, ms = ORIGINAL[seq_name]
-            print(f"{seq_name:<26} {'original C++ (ORB)':<22} {tracked:>9} {ate:>11} "
-                  f"{'':>4} {ms:>9}", flush=True)
-    return 1 if failed else 0
+    if args.mapping_period is not None and (args.threaded or args.mapping_period < 1):
+        raise InputError("--mapping-period needs no --threaded and a period >= 1")
+    seeds = [None] if args.seeds is None else parse_seeds(args.seeds)
+    return [(name, variant, seed) for name in config_names(args.configs)
+            for variant in variants(args.set) for seed in seeds]
+
+
+def _sequences(args: argparse.Namespace):
+    """(name, world seed or None, sequence in memory) of every sequence to track."""
+    from sim.replay.seeds import parse_seeds
+    from sim.track_command import resolve_sequence
+
+    size = None
+    if args.size is not None:
+        from sim.render_command import parse_size  # loads the renderer: only when asked
+
+        size = parse_size(args.size)
+    worlds = [None] if args.world_seeds is None else parse_seeds(args.world_seeds)
+    for name in args.sequences:
+        for world in worlds:
+            sequence = resolve_sequence(name, size, world, args.textures)
+            yield Path(name).name, world, in_memory(sequence, args.max_frames)
+
+
+def _print_summary(rows: list[dict], plan: list, as_json: bool) -> None:
+    """The sweep's summary (only when some configuration ran more than once on a sequence:
+    several variants, seeds or world seeds)."""
+    lines = summary(rows)
+    if all(s["runs"] == 1 for s in lines) and len({v for _, v, _ in plan}) < 2:
+        return
+    first = plan[0][1].label
+    for s in lines:
+        print(json.dumps({"summary": s}) if as_json else format_summary(s, first), flush=True)
 
 
 def table_run(seq_name: str, name: str, sequence, config, args: argparse.Namespace,
@@ -116,8 +176,9 @@ def table_run(seq_name: str, name: str, sequence, config, args: argparse.Namespa
     """One row: the sequence tracked with one configuration; a run that fails gives a row
     with its error (one broken run must not lose the rest of the table)."""
     try:
+        slow = None if args.mapping_period is None else (args.mapping_period, 0)
         report, _ = track_sequence(sequence, config, args.threaded, args.max_frames,
-                                   quiet=True, paced=args.paced)
+                                   quiet=True, paced=args.paced, slow_mapping=slow)
     except Exception as exc:
         return {"sequence": seq_name, "config": name,
                 "error": f"{type(exc).__name__}: {exc}"}
@@ -222,6 +283,10 @@ def format_row(r: dict) -> str:
     indicative, each having its own scale), tracking median and p95 ms, mapping median and
     mean ms."""
     label = f"{r['config']} ({THESIS_NAMES[r['config']]})"
+    extra = [f"world {r['world_seed']}" if r.get("world_seed") is not None else "",
+             f"seed {r['seed']}" if r.get("seed") is not None else "",
+             "" if r.get("variant", "as configured") == "as configured" else r["variant"]]
+    label = " ".join([label, *filter(None, extra)])
     if "error" in r:
         return f"{r['sequence']:<26} {label:<22} failed: {r['error']}"
 
