@@ -25,7 +25,8 @@ class Variant:
     @property
     def label(self) -> str:
         """'key=value,key=value', or 'as configured'."""
-        return ",".join(f"{k}={v}" for k, v in self.parameters) or "as configured"
+        return ",".join(f"{k}={str(v).lower() if isinstance(v, bool) else v}"
+                        for k, v in self.parameters) or "as configured"
 
 
 def parse_value(text: str) -> object:

@@ -116,8 +116,8 @@ class TrackerConfig:
     ba_first_iterations: int = 5
     ba_second_iterations: int = 10
     # points in the BA need this many keyframe observations besides their host's: with 3 the
-    # free keyframes kept too few observations and a BA moved them far; 1 lets in points too
-    # weakly determined (RESULTS.md: tracker-ba-min-views)
+    # free keyframes kept too few observations and a BA moved them far; 1 was worse when this
+    # was chosen, not on today's survey-down (RESULTS.md: tracker-ba-min-views)
     ba_min_views: int = 2
     # a keyframe is free only with this many observations in the problem (its own and those
     # of the points it hosts, by other keyframes); one the window barely sees is held fixed:
