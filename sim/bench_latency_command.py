@@ -22,6 +22,7 @@ from daemon.camera import TestPatternSource
 from daemon.config import Config, load_config, replace
 from daemon.run_command import camera_model, setup_logging, tracker_factory
 from daemon.service import Service
+from sim.autopilot import configured_options
 from sim.replay.autopilot_process import AutopilotProcess, VisionMessage
 from sim.replay.harness import choose_estimator, run_replay
 from sim.replay.recording import Recorder, stats_ms
@@ -134,7 +135,7 @@ def bench_test_pattern(config: Config, args: argparse.Namespace) -> dict:
     """The service on the built-in test pattern at args.fps until args.frames + args.warmup
     frames were processed."""
     source = TestPatternSource(320, 240, args.fps)
-    autopilot = AutopilotProcess()
+    autopilot = AutopilotProcess(configured_options())
     try:
         config = replace(config, mavlink={"link": autopilot.url, "output": "odometry"},
                          camera={"source": "testpattern", "calibration": ""})
@@ -144,6 +145,6 @@ def bench_test_pattern(config: Config, args: argparse.Namespace) -> dict:
         asyncio.run(measure(service, recorder, args.frames + args.warmup))
         time.sleep(0.2)
     finally:
-        received = autopilot.finish()
+        received = autopilot.finish().vision
     return report(recorder.rows, received, args.warmup, service.capture.slot.dropped,
                   _estimator(config))

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink2
 
 from daemon.mavlink_codec import MavlinkCodec
-from sim.autopilot import SimAutopilot, SimOptions
+from sim.autopilot import SimAutopilot, configured_options
 
 MAX_FRAME = 280  # longest MAVLink 2 frame: a wrong length byte can swallow this much
 
@@ -82,7 +82,7 @@ def test_vision_stream_continues_under_garbage():
     """The simulated autopilot mixes seeded garbage into its stream for 2.5 s: the service
     keeps sending ODOMETRY at 30 Hz and answering TIMESYNC."""
     rng = random.Random(1234)
-    with SimAutopilot(SimOptions(heartbeat_hz=5)) as sim:
+    with SimAutopilot(configured_options(heartbeat_hz=5, timesync_hz=10)) as sim:
         run = RunningService(service_config(sim.url))
         assert wait_for(lambda: len(sim.messages("ODOMETRY")) >= 10, 5.0)
         t0 = time.monotonic()
@@ -117,7 +117,7 @@ def test_vision_stream_continues_under_garbage():
 
 @pytest.fixture(scope="module")
 def live_service():
-    sim = SimAutopilot(SimOptions(heartbeat_hz=5)).start()
+    sim = SimAutopilot(configured_options(heartbeat_hz=5, timesync_hz=10)).start()
     run = RunningService(service_config(sim.url))
     assert wait_for(lambda: len(sim.messages("ODOMETRY")) >= 5, 5.0)
     yield sim, run

@@ -13,7 +13,7 @@ from daemon_helpers import FakeTracker, RunningService, service_config, wait_for
 
 from daemon.frames import Frame, LatestSlot
 from daemon.tracking import HandoffGate, TrackingThread
-from sim.autopilot import SimAutopilot
+from sim.autopilot import SimAutopilot, configured_options
 
 
 def test_gate_waits_for_its_frame_and_no_longer_than_the_timeout():
@@ -70,7 +70,7 @@ class MappingFakeTracker(FakeTracker):
 def test_service_releases_each_mapping_step_after_the_frame_was_handled():
     handled: dict[float, float] = {}
     tracker = MappingFakeTracker()
-    with SimAutopilot() as sim:
+    with SimAutopilot(configured_options()) as sim:
         run = RunningService(service_config(sim.url), tracker=tracker,
                              on_tracked=lambda tf, sent: handled.setdefault(tf.t_source,
                                                                             time.monotonic()))

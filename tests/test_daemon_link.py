@@ -13,7 +13,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from scipy.spatial.transform import Rotation
 
 from daemon.messages import MAV_CMD_DO_SET_GLOBAL_ORIGIN
-from sim.autopilot import SimAutopilot, SimOptions
+from sim.autopilot import SimAutopilot, configured_options
 
 SCALE = 2.0
 LAT, LON, ALT = 40.4168, -3.7038, 667.0
@@ -28,7 +28,8 @@ def quaternion(msg) -> Rotation:
 @pytest.fixture(scope="module")
 def udp_run():
     """One 4.6 s run over UDP: ArduPilot flavour whose EKF gets ready 1.2 s after start."""
-    sim = SimAutopilot(SimOptions(ekf_ready_after_s=1.2, heartbeat_hz=5)).start()
+    sim = SimAutopilot(configured_options(ekf_ready_after_s=1.2, heartbeat_hz=5,
+                                          timesync_hz=10)).start()
     cfg = service_config(sim.url, mounting={"preset": "down", "scale": SCALE},
                       origin={"enabled": True, "latitude_deg": LAT, "longitude_deg": LON,
                               "altitude_m": ALT, "resend_interval_s": 0.25})
@@ -155,7 +156,8 @@ def test_origin_resent_until_confirmed(udp_run):
         1, 1, mavlink2.MAV_FRAME_GLOBAL, round(LAT * 1e7), round(LON * 1e7))
     assert c.z == pytest.approx(ALT)
     assert (c.current, c.autocontinue, c.param1, c.param2, c.param3, c.param4) == (0,) * 6
-    requests = sim.messages("COMMAND_LONG")
+    requests = [r for r in sim.messages("COMMAND_LONG")
+                if r.msg.command == mavlink2.MAV_CMD_REQUEST_MESSAGE]
     assert len(requests) == len(commands)  # each attempt asks for GPS_GLOBAL_ORIGIN too
     r = requests[0].msg
     assert (r.target_system, r.target_component, r.command, r.confirmation) == (
@@ -180,7 +182,7 @@ def test_statustext_on_state_changes_only(udp_run):
 
 
 def test_origin_falls_back_to_set_gps_global_origin():
-    with SimAutopilot(SimOptions(supports_origin_command=False, heartbeat_hz=5)) as sim:
+    with SimAutopilot(configured_options(supports_origin_command=False, heartbeat_hz=5)) as sim:
         cfg = service_config(sim.url, origin={"enabled": True, "latitude_deg": LAT,
                                            "longitude_deg": LON, "resend_interval_s": 0.2})
         run = RunningService(cfg)
@@ -196,7 +198,7 @@ def test_origin_falls_back_to_set_gps_global_origin():
 def test_vision_position_and_speed_fields():
     """output = both: ODOMETRY, VISION_POSITION_ESTIMATE and VISION_SPEED_ESTIMATE per frame,
     all with the same capture stamp and consistent values."""
-    with SimAutopilot(SimOptions(heartbeat_hz=5)) as sim:
+    with SimAutopilot(configured_options(heartbeat_hz=5)) as sim:
         run = RunningService(service_config(sim.url, mavlink={"output": "both"}))
         assert wait_for(lambda: len(sim.messages("VISION_SPEED_ESTIMATE")) >= 20, 8.0)
         run.stop()
@@ -221,7 +223,7 @@ def test_vision_position_and_speed_fields():
 
 def test_never_faster_than_50_hz():
     """A 100 fps camera: every other frame goes out, no two stamps closer than 20 ms."""
-    with SimAutopilot(SimOptions(heartbeat_hz=5)) as sim:
+    with SimAutopilot(configured_options(heartbeat_hz=5)) as sim:
         cfg = service_config(sim.url, camera={"fps": 100.0})
         run = RunningService(cfg)
         assert wait_for(lambda: len(sim.messages("ODOMETRY")) >= 80, 8.0)
@@ -235,7 +237,7 @@ def test_never_faster_than_50_hz():
 @pytest.mark.parametrize("port", ["tcp", "pty"])
 def test_stream_over_tcp_and_serial_pty(port):
     """The same service over TCP and over a pseudo-terminal serial port."""
-    with SimAutopilot(SimOptions(port=port, heartbeat_hz=5)) as sim:
+    with SimAutopilot(configured_options(port=port, heartbeat_hz=5, timesync_hz=10)) as sim:
         run = RunningService(service_config(sim.url))
         assert wait_for(lambda: len(sim.messages("ODOMETRY")) >= 45, 8.0), sim.url
         assert wait_for(lambda: len(sim.messages("TIMESYNC")) >= 5, 3.0)

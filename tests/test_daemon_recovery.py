@@ -9,7 +9,7 @@ import numpy as np
 from daemon_helpers import FakeTracker, RunningService, service_config, wait_for
 from pymavlink.dialects.v20 import common as mavlink2
 
-from sim.autopilot import SimAutopilot, SimOptions
+from sim.autopilot import SimAutopilot, configured_options
 
 ORIGIN = {"enabled": True, "latitude_deg": 47.0, "longitude_deg": 8.0, "resend_interval_s": 0.2}
 
@@ -17,7 +17,7 @@ ORIGIN = {"enabled": True, "latitude_deg": 47.0, "longitude_deg": 8.0, "resend_i
 def test_link_loss_then_autopilot_reboot_recovered():
     """Loss: heartbeats stop, the service notices and, when they return, checks the origin.
     Reboot: the origin is gone; the service sets it again. Vision never stops for long."""
-    with SimAutopilot(SimOptions(heartbeat_hz=5, ekf_ready_after_s=0.3)) as sim:
+    with SimAutopilot(configured_options(heartbeat_hz=5, ekf_ready_after_s=0.3)) as sim:
         run = RunningService(service_config(sim.url, origin=ORIGIN))
         assert wait_for(lambda: sim.origin is not None, 5.0)
         watch = run.service.watch
@@ -45,7 +45,7 @@ def test_link_loss_then_autopilot_reboot_recovered():
 
 def test_quick_reboot_seen_from_boot_time():
     """A reboot shorter than the heartbeat timeout is caught by time_boot_ms going back."""
-    with SimAutopilot(SimOptions(heartbeat_hz=5)) as sim:
+    with SimAutopilot(configured_options(heartbeat_hz=5)) as sim:
         run = RunningService(service_config(sim.url, origin=ORIGIN,
                                             mavlink={"heartbeat_timeout_s": 2.0}))
         assert wait_for(lambda: sim.origin is not None, 5.0)
@@ -69,7 +69,7 @@ def lost_then_new_map(index: int) -> tuple[str, bool]:
 
 
 def test_new_map_segment_increments_reset_counter():
-    with SimAutopilot(SimOptions(heartbeat_hz=5)) as sim:
+    with SimAutopilot(configured_options(heartbeat_hz=5)) as sim:
         run = RunningService(service_config(sim.url, mavlink={"output": "both"}),
                              tracker=FakeTracker(lost_then_new_map))
         assert wait_for(lambda: len(sim.messages("ODOMETRY")) >= 50, 8.0)
@@ -105,7 +105,7 @@ class SlowTracker(FakeTracker):
 
 
 def test_stale_poses_are_never_sent():
-    with SimAutopilot(SimOptions(heartbeat_hz=5)) as sim:
+    with SimAutopilot(configured_options(heartbeat_hz=5)) as sim:
         run = RunningService(service_config(sim.url), tracker=SlowTracker())
         assert wait_for(lambda: run.service.stats.skipped_stale >= 4, 5.0)
         time.sleep(0.3)
@@ -133,7 +133,7 @@ def test_camera_loss_is_reported():
             pass
 
     source = Broken()
-    with SimAutopilot(SimOptions(heartbeat_hz=5)) as sim:
+    with SimAutopilot(configured_options(heartbeat_hz=5)) as sim:
         cfg = service_config(sim.url, camera={"reconnect_min_s": 0.05, "reconnect_max_s": 0.2})
         run = RunningService(cfg, source=source)
         assert wait_for(lambda: any(r.msg.system_status == mavlink2.MAV_STATE_FLIGHT_TERMINATION

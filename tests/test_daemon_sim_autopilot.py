@@ -1,5 +1,6 @@
-"""The simulated autopilot itself, seen from a plain MAVLink client: streams and their values,
-origin handling, parameters, recording."""
+"""The simulated autopilot itself over a real socket, seen from a plain MAVLink client: streams
+and their values, origin handling, parameters, recording. (Its firmware behaviour, on a virtual
+clock: tests/test_sim_autopilot_*.py.)"""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from daemon.fusion.clock import ClockMap
 from daemon.messages import MAV_CMD_DO_SET_GLOBAL_ORIGIN
-from sim.autopilot import SimAutopilot, SimOptions
+from sim.autopilot import SimAutopilot, SimOptions, configured_options
 from sim.autopilot.vehicle import ACCEL_LIMIT, GRAVITY
 from sim.trajectory import Trajectory
 
@@ -55,14 +56,15 @@ class Client:
     ("px4", {"ATTITUDE": 20, "HIGHRES_IMU": 50, "DISTANCE_SENSOR": 10, "ALTITUDE": 10}),
 ])
 def test_streams_rates_and_values(flavour, streams):
-    with SimAutopilot(SimOptions(flavour=flavour)) as sim:
+    with SimAutopilot(configured_options(flavour, requested=streams)) as sim:
         client = Client(sim)
         client.send(client.mav.heartbeat_encode(18, 8, 0, 0, 4))
         client.listen(2.2)
     t0 = client.received[0][0]
     window = [(t, m) for t, m in client.received if t - t0 > 0.1]
     span = window[-1][0] - window[0][0]
-    for name, hz in {**streams, "TIMESYNC": 10}.items():
+    own = {"px4": {"TIMESYNC": 10}, "ardupilot": {}}[flavour]  # PX4's Onboard mode sends it
+    for name, hz in {**streams, **own}.items():
         count = sum(1 for _, m in window if m.get_type() == name)
         assert count / span == pytest.approx(hz, rel=0.10), name
     beat = client.of("HEARTBEAT")[0]
@@ -120,7 +122,9 @@ def test_parameters_read_and_listed():
         client.send(client.mav.param_request_list_encode(1, 1))
         client.listen(0.3)
     values = client.of("PARAM_VALUE")
-    assert (values[0].param_id, values[0].param_value) == ("VISO_TYPE", 1.0)
+    # a read by name is answered with the index asked for, -1 as the uint16 field
+    assert (values[0].param_id, values[0].param_value, values[0].param_index) == \
+        ("VISO_TYPE", 1.0, 65535)
     assert len(values) == 1 + values[0].param_count
     assert {v.param_id for v in values[1:]} == set(sim.params)
 
@@ -141,7 +145,7 @@ def test_records_vision_messages_with_arrival_time():
 def test_timesync_and_streams_on_one_boot_clock():
     """Like a real autopilot, TIMESYNC requests carry the boot time the streams are stamped
     with, so the service's clock mapping gets one offset from either."""
-    with SimAutopilot(SimOptions(timesync_hz=20)) as sim:
+    with SimAutopilot(configured_options(timesync_hz=20)) as sim:
         client = Client(sim)
         client.send(client.mav.heartbeat_encode(18, 8, 0, 0, 4))
         client.listen(1.5)
@@ -168,7 +172,7 @@ def test_absurd_motion_saturates_the_imu_like_a_real_sensor():
     t = np.arange(0.0, 2.0, 0.02)
     wild = Trajectory(t, np.column_stack([1e4 * np.sin(40 * t), 0 * t, 0 * t - 2.0]),
                       np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1)))
-    with SimAutopilot(SimOptions(trajectory=wild, timesync_hz=0)) as sim:
+    with SimAutopilot(configured_options(trajectory=wild, timesync_hz=0)) as sim:
         client = Client(sim)
         client.send(client.mav.heartbeat_encode(18, 8, 0, 0, 4))
         client.listen(0.6)
@@ -187,7 +191,7 @@ class _NanVehicle:
 
 @pytest.mark.filterwarnings("ignore:invalid value encountered in cast")
 def test_unencodable_values_are_skipped_and_logged_never_fatal(caplog):
-    with SimAutopilot(SimOptions(timesync_hz=0)) as sim:
+    with SimAutopilot(configured_options(timesync_hz=0)) as sim:
         sim.vehicle = _NanVehicle()
         client = Client(sim)
         client.send(client.mav.heartbeat_encode(18, 8, 0, 0, 4))

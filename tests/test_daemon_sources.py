@@ -18,7 +18,7 @@ from calib.camera_yaml import save_camera
 from daemon.camera import CaptureThread, OpenCVSource, SequenceSource, TestPatternSource
 from daemon.frames import Frame, LatestSlot
 from sdvl.errors import InputError
-from sim.autopilot import SimAutopilot, SimOptions
+from sim.autopilot import SimAutopilot, configured_options
 from sim.sequence import Sequence
 
 CAMERA = CameraModel(64, 48, 50.0, 50.0, 32.0, 24.0, "none", [])
@@ -56,7 +56,7 @@ def test_latest_slot_waits_in_replay_mode():
 
 def replay(realtime: bool, n: int = 40) -> tuple[RunningService, SimAutopilot, list]:
     tracked = []
-    with SimAutopilot(SimOptions(heartbeat_hz=5)) as sim:
+    with SimAutopilot(configured_options(heartbeat_hz=5)) as sim:
         run = RunningService(service_config(sim.url),
                              source=SequenceSource(tiny_sequence(n), realtime=realtime),
                              on_tracked=lambda tf, sent: tracked.append(tf))
@@ -137,7 +137,7 @@ def test_tracker_gets_source_time_and_the_estimate_capture_time():
             seen.append(t)
             return super().process(image, t)
 
-    with SimAutopilot(SimOptions(heartbeat_hz=5)) as sim:
+    with SimAutopilot(configured_options(heartbeat_hz=5)) as sim:
         run = RunningService(service_config(sim.url), tracker=Recording(),
                              source=SequenceSource(tiny_sequence(10), realtime=False))
         run.thread.join(10.0)

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from daemon.sdnotify import Notifier
-from sim.autopilot import SimAutopilot, SimOptions
+from sim.autopilot import SimAutopilot, configured_options
 
 UNIT = Path(__file__).resolve().parents[1] / "systemd" / "sdvl-companion.service"
 INSTALLED_SDVL = "/opt/sdvl/venv/bin/sdvl"
@@ -88,7 +88,7 @@ def test_sdvl_run_under_notify_socket_and_sigterm(tmp_path):
     """The real `sdvl run` (real tracker, test-pattern camera) against the simulated autopilot:
     READY=1, WATCHDOG=1 and STATUS= arrive; SIGTERM stops it cleanly in under 2 s."""
     notify = receiver(tmp_path / "notify")
-    with SimAutopilot(SimOptions(heartbeat_hz=5)) as sim:
+    with SimAutopilot(configured_options(heartbeat_hz=5)) as sim:
         config = tmp_path / "sdvl.toml"
         config.write_text(f'[camera]\nsource = "testpattern"\n[mavlink]\nlink = "{sim.url}"\n'
                           '[service]\nstatus_interval_s = 0.5\n')

@@ -8,7 +8,7 @@ import socket
 from daemon_helpers import RunningService, service_config, wait_for
 from pymavlink.dialects.v20 import common as mavlink2
 
-from sim.autopilot import SimAutopilot, SimOptions
+from sim.autopilot import SimAutopilot, configured_options
 
 
 def test_udp_port_in_use_is_retried_then_served(caplog):
@@ -50,7 +50,7 @@ def test_missing_serial_device_is_retried(caplog):
 
 def test_mavlink1_autopilot_is_warned_about(caplog):
     caplog.set_level(logging.WARNING, logger="sdvl.mavlink")
-    with SimAutopilot(SimOptions(mavlink1=True, heartbeat_hz=5)) as sim:
+    with SimAutopilot(configured_options(mavlink1=True, heartbeat_hz=5)) as sim:
         run = RunningService(service_config(sim.url))
         assert wait_for(lambda: run.service.codec.mavlink1_seen, 5.0)
         assert wait_for(lambda: len(sim.messages("ODOMETRY")) > 5, 5.0)

@@ -11,7 +11,7 @@ from daemon_helpers import RunningService, service_config, wait_for
 
 from daemon.fusion.config import FusionConfig
 from daemon.fusion.estimator import FusionEstimator
-from sim.autopilot import SimAutopilot, SimOptions
+from sim.autopilot import SimAutopilot, configured_options
 
 EXPECTED = {"ardupilot": {"imu": "SCALED_IMU", "baro": "SCALED_PRESSURE"},
             "px4": {"imu": "HIGHRES_IMU", "baro": "HIGHRES_IMU"}}
@@ -19,7 +19,7 @@ EXPECTED = {"ardupilot": {"imu": "SCALED_IMU", "baro": "SCALED_PRESSURE"},
 
 @pytest.mark.parametrize("flavour", list(EXPECTED))
 def test_service_feeds_the_autopilot_streams_to_fusion(flavour: str) -> None:
-    with SimAutopilot(SimOptions(flavour=flavour, heartbeat_hz=5)) as sim:
+    with SimAutopilot(configured_options(flavour=flavour, heartbeat_hz=5)) as sim:
         cfg = service_config(sim.url, mounting={"preset": "down"})
         estimator = FusionEstimator(FusionConfig(), cfg.mounting)
         run = RunningService(cfg, estimator=estimator)

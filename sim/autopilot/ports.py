@@ -12,6 +12,7 @@ import socket
 import tty
 
 BAUD = 921600
+RECEIVE_BUFFER = 4 * 1024 * 1024
 
 
 class UdpPort:
@@ -20,6 +21,8 @@ class UdpPort:
 
     def __init__(self, port: int = 0):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        # room for seconds of vision if a busy test machine starves this thread
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER)
         self.sock.bind(("127.0.0.1", port))
         self.sock.setblocking(False)
         self.peer: tuple | None = None
@@ -29,11 +32,14 @@ class UdpPort:
         return self.sock.fileno()
 
     def read(self) -> bytes:
-        try:
-            data, self.peer = self.sock.recvfrom(65536)
-        except BlockingIOError:
-            return b""
-        return data
+        """Every datagram waiting (MAVLink frames may be concatenated)."""
+        chunks = []
+        while True:
+            try:
+                data, self.peer = self.sock.recvfrom(65536)
+            except (BlockingIOError, OSError):
+                return b"".join(chunks)
+            chunks.append(data)
 
     def write(self, data: bytes) -> None:
         if self.peer is not None:

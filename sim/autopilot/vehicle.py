@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from sim.trajectory import Trajectory
 
@@ -21,6 +21,9 @@ ACCEL_LIMIT = 16 * GRAVITY
 GYRO_LIMIT = 30.0
 MAX_RANGE_CM = 65535
 RANGEFINDER_MAX_CM = 4000  # the DISTANCE_SENSOR's max_distance: a reading there is no echo
+SENSOR_MESSAGES = frozenset({"ATTITUDE", "ATTITUDE_QUATERNION", "HIGHRES_IMU", "SCALED_IMU",
+                             "SCALED_IMU2", "RAW_IMU", "DISTANCE_SENSOR", "SCALED_PRESSURE",
+                             "ALTITUDE"})
 
 
 def hover_trajectory(duration_s: float = 20.0, rate_hz: float = 50.0) -> Trajectory:
@@ -32,32 +35,66 @@ def hover_trajectory(duration_s: float = 20.0, rate_hz: float = 50.0) -> Traject
     return Trajectory(t, positions, Rotation.from_euler("ZYX", euler).as_quat())
 
 
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of scalar-last quaternions (x, y, z, w)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return np.array([aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz])
+
+
+def _qconj(q: np.ndarray) -> np.ndarray:
+    return np.array([-q[0], -q[1], -q[2], q[3]])
+
+
+def _qrotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """v turned by the unit quaternion q."""
+    return _qmul(_qmul(q, np.append(v, 0.0)), _qconj(q))[:3]
+
+
+def _rotvec(q: np.ndarray) -> np.ndarray:
+    """Rotation vector (rad) of a unit quaternion."""
+    q = q if q[3] >= 0 else -q
+    norm = np.linalg.norm(q[:3])
+    if norm < 1e-12:
+        return 2.0 * q[:3]
+    return q[:3] * (2.0 * np.arctan2(norm, q[3]) / norm)
+
+
 class Vehicle:
-    """Pose, velocity, rates and specific force at any time (the trajectory loops)."""
+    """Pose, velocity, rates and specific force at any time (the trajectory loops). Samples are
+    interpolated linearly (quaternions normalised), plain numpy: this is called at IMU rate."""
 
     def __init__(self, trajectory: Trajectory | None = None):
         self.trajectory = trajectory or hover_trajectory()
         self.t0 = float(self.trajectory.t[0])
         self.duration = float(self.trajectory.t[-1]) - self.t0
-        self._slerp = Slerp(self.trajectory.t, self.trajectory.rotations)
+        self._t = np.asarray(self.trajectory.t, float)
+        self._p = np.asarray(self.trajectory.positions, float)
+        q = np.array(self.trajectory.quaternions, float)
+        for i in range(1, len(q)):  # one hemisphere, so neighbours interpolate the short way
+            if np.dot(q[i], q[i - 1]) < 0:
+                q[i] = -q[i]
+        self._q = q
 
-    def _at(self, t: float) -> tuple[np.ndarray, Rotation]:
+    def _at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         t = self.t0 + (t % self.duration)
-        p = np.array([np.interp(t, self.trajectory.t, self.trajectory.positions[:, i])
-                      for i in range(3)])
-        return p, self._slerp([t])[0]
+        i = min(max(int(np.searchsorted(self._t, t)) - 1, 0), len(self._t) - 2)
+        f = min(max((t - self._t[i]) / (self._t[i + 1] - self._t[i]), 0.0), 1.0)
+        q = (1 - f) * self._q[i] + f * self._q[i + 1]
+        return (1 - f) * self._p[i] + f * self._p[i + 1], q / np.linalg.norm(q)
 
     def state(self, t: float) -> dict:
         """position, velocity, accel (NED), rotation (body->NED), rates (body), specific force."""
-        p0, r0 = self._at(t - DIFF_DT)
-        p1, r1 = self._at(t)
+        p0, q0 = self._at(t - DIFF_DT)
+        p1, q1 = self._at(t)
         p2, _ = self._at(t + DIFF_DT)
         velocity = (p2 - p0) / (2 * DIFF_DT)
         accel = (p2 - 2 * p1 + p0) / DIFF_DT**2
-        rates = (r0.inv() * r1).as_rotvec() / DIFF_DT
-        specific_force = r1.inv().apply(accel - np.array([0.0, 0.0, GRAVITY]))
-        return {"position": p1, "velocity": velocity, "rotation": r1, "rates": rates,
-                "specific_force": specific_force}
+        rates = _rotvec(_qmul(_qconj(q0), q1)) / DIFF_DT
+        specific_force = _qrotate(_qconj(q1), accel - np.array([0.0, 0.0, GRAVITY]))
+        return {"position": p1, "velocity": velocity, "rotation": Rotation.from_quat(q1),
+                "rates": rates, "specific_force": specific_force}
 
 
 def nearest_sample(times: np.ndarray, t: float) -> int:
@@ -68,6 +105,17 @@ def nearest_sample(times: np.ndarray, t: float) -> int:
 def pressure_hpa(altitude_m: float) -> float:
     """Standard-atmosphere static pressure at an altitude above sea level."""
     return SEA_LEVEL_HPA * (1 - 2.25577e-5 * altitude_m) ** 5.25588
+
+
+def _scaled_imu(mav: mavlink2.MAVLink, name: str, boot_ms: int, s: dict) -> object:
+    """SCALED_IMU/SCALED_IMU2, or RAW_IMU, which ArduPilot fills with the same scaled units
+    (mG, mrad/s, mGauss; GCS_Common.cpp send_raw_imu) and stamps in microseconds."""
+    accel_mg = (s["specific_force"] / GRAVITY * 1000).round().astype(int)
+    gyro_mrad = (s["rates"] * 1000).round().astype(int)
+    if name == "RAW_IMU":
+        return mav.raw_imu_encode(boot_ms * 1000, *accel_mg, *gyro_mrad, 200, 0, 400)
+    encode = mav.scaled_imu_encode if name == "SCALED_IMU" else mav.scaled_imu2_encode
+    return encode(boot_ms, *accel_mg, *gyro_mrad, 200, 0, 400)
 
 
 def sensor_message(mav: mavlink2.MAVLink, name: str, t: float, boot_ms: int,
@@ -85,10 +133,11 @@ def sensor_message(mav: mavlink2.MAVLink, name: str, t: float, boot_ms: int,
         return mav.highres_imu_encode(boot_ms * 1000, *s["specific_force"], *s["rates"],
                                       0.2, 0.0, 0.4, pressure_hpa(baro_alt), 0.0, baro_alt,
                                       25.0, 0x1FFF)
-    if name == "SCALED_IMU":
-        accel_mg = (s["specific_force"] / GRAVITY * 1000).round().astype(int)
-        gyro_mrad = (s["rates"] * 1000).round().astype(int)
-        return mav.scaled_imu_encode(boot_ms, *accel_mg, *gyro_mrad, 200, 0, 400)
+    if name in ("SCALED_IMU", "SCALED_IMU2", "RAW_IMU"):
+        return _scaled_imu(mav, name, boot_ms, s)
+    if name == "ATTITUDE_QUATERNION":
+        x, y, z, w = s["rotation"].as_quat()
+        return mav.attitude_quaternion_encode(boot_ms, w, x, y, z, *s["rates"])
     if name == "DISTANCE_SENSOR":
         tilt = np.cos(roll) * np.cos(pitch)
         distance = s.get("range", height / max(tilt, 0.1))  # a recorded one's, None: no echo
