@@ -275,7 +275,8 @@ def tracker_results(truth: Truth, opt: TrackerOptions, mounting: MountingConfig,
         T[:3, 3] = seg["p_w"] + scale * (R_w_n @ rng.normal(0, noise, 3))
         cov = np.diag([(scale * opt.cov_std_m * (3.0 if weak else 1.0)) ** 2] * 3
                       + [np.radians(opt.rot_noise_deg) ** 2] * 3)
-        result = FrameResult(t, T, "insufficient" if weak else "good", cov, new_segment=new)
+        result = FrameResult(t, T, "insufficient" if weak else "good", covariance=cov,
+                             new_segment=new)
         if opt.scene_points:
             ground = _ground_points(truth.p[i] + truth.R[i] @ opt.lever, opt, rng)
             scene = seg["p_w"] + scale * (ground - last_p) @ R_w_n.T

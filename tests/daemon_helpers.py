@@ -40,7 +40,8 @@ class FakeTracker:
         self.index += 1
         pose = None if quality in ("lost", "initializing") else self.pose(t - self.t0)
         cov = np.diag([1e-4] * 3 + [1e-5] * 3) if pose is not None else None
-        return FrameResult(t, pose, quality, cov, 100, 120, 90, {"total": 0.001}, new_segment)
+        return FrameResult(t, pose, quality, covariance=cov, n_matches=100, n_attempts=120,
+                           n_inliers=90, timings={"total": 0.001}, new_segment=new_segment)
 
     def close(self) -> None:
         self.closed = True

@@ -60,7 +60,8 @@ class GroundTruthTracker:
         i = int(np.argmin(np.abs(self.gt.t - t)))
         T = self.T_vo_ned @ self.gt.matrices()[i]
         T[:3, 3] *= VO_SCALE
-        return FrameResult(t, T, "good", np.diag([1e-6] * 6), 100, 120, 90, {}, i == 0)
+        return FrameResult(t, T, "good", covariance=np.diag([1e-6] * 6), n_matches=100,
+                           n_attempts=120, n_inliers=90, new_segment=i == 0)
 
     def close(self) -> None:
         """Nothing to release."""

@@ -42,7 +42,6 @@ from sim.replay.recording import Recorder
 from sim.replay.replay_run import FirstFrames, ReplayRun, aligned_time
 from sim.trajectory import Trajectory
 
-WARMUP_FRAMES = 30  # enough for the map to start, so mapping kernels are loaded too
 SETTLE_S = 0.3  # after the last frame, for the last messages to arrive
 RATE_MARGIN = 1.05  # fast replay: frames this much slower than the message rate limit
 
@@ -100,20 +99,19 @@ def choose_estimator(config: Config, sequence: object, estimator: str) -> Config
 
 
 def warm_up(make_tracker: Callable, sequence: object) -> float:
-    """Run a throwaway tracker over the first frames so compiled kernels are loaded before the
-    clock starts (a drone's service is up before it flies); returns the seconds it took."""
+    """Run a throwaway tracker over the tracker's warm-up frames (vo.warm_up: a synthetic pan,
+    nothing rendered or read) so compiled kernels are loaded before the clock starts (a
+    drone's service is up before it flies); returns the seconds it took."""
     from daemon.frames import Frame
+    from vo.warm_up import warm_up as warm_tracker
 
     start = time.perf_counter()
-    tracker = None
+    width, height = sequence.camera.width, sequence.camera.height
+    tracker = make_tracker(Frame(0, 0.0, time.monotonic(), np.zeros((height, width), np.uint8)))
     try:
-        for i, (t, image) in enumerate(sequence.frames(WARMUP_FRAMES)):
-            frame = Frame(i, t, time.monotonic(), image)
-            tracker = tracker or make_tracker(frame)
-            tracker.process(image, t)
+        warm_tracker(tracker.process, width, height)
     finally:
-        if tracker is not None:
-            tracker.close()
+        tracker.close()
     return time.perf_counter() - start
 
 
