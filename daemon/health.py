@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pymavlink.dialects.v20 import common as mavlink2
 
 from sdvl.errors import InputError
+from vo.result import Quality
 
 NO_FRAMES_S = 1.0  # no frame tracked for this long: something is wrong, say what
 
@@ -35,9 +36,9 @@ class Health(enum.StrEnum):
     FAILED = "failed"
 
     @classmethod
-    def of_tracking(cls, quality: str) -> Health:
-        """The state for a tracker quality string (vo.result.FrameResult.quality)."""
-        return cls(quality) if quality in TRACKER_QUALITIES else cls.BAD
+    def of_tracking(cls, quality: Quality) -> Health:
+        """The state for a tracker quality (vo.result.FrameResult.quality)."""
+        return cls(quality) if quality in tuple(Quality) else cls.BAD
 
     @property
     def report(self) -> Report:
@@ -53,7 +54,6 @@ class Report:
     system_status: int  # HEARTBEAT.system_status (MAV_STATE)
 
 
-TRACKER_QUALITIES = ("initializing", "good", "insufficient", "bad", "lost")
 _INFO, _WARNING = mavlink2.MAV_SEVERITY_INFO, mavlink2.MAV_SEVERITY_WARNING
 _CRITICAL, _EMERGENCY = mavlink2.MAV_SEVERITY_CRITICAL, mavlink2.MAV_SEVERITY_EMERGENCY
 _UNUSABLE = mavlink2.MAV_STATE_FLIGHT_TERMINATION

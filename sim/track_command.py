@@ -19,6 +19,7 @@ import numpy as np
 from sdvl.errors import InputError
 from sim.track_methods import METHODS, alignment, build_tracker, check_method, load_config
 from sim.trajectory import Trajectory, write_tum
+from vo.result import Quality
 
 PROGRESS_EVERY_S = 2.0
 FRAME_COLUMNS = ("t", "quality", "matches", "attempts", "ransac_hypotheses", "inliers",
@@ -208,7 +209,7 @@ class TrackLog:
         self.qualities.append(result.quality)
         if self.frame_rows is not None:
             self.frame_rows.append(frame_row(result))
-        if result.quality != "initializing":
+        if result.quality != Quality.INITIALIZING:
             self.timings.append(result.timings)
         if result.has_pose:
             self.times.append(t)

@@ -58,6 +58,7 @@ from daemon.fusion.source_choice import SourceChoice
 from daemon.fusion.state import THETA, NavFilter
 from daemon.fusion.timeline import Event, Timeline
 from daemon.mounting import body_from_camera
+from vo.result import Quality
 
 log = logging.getLogger("sdvl.fusion")
 INBOX_LIMIT = 20_000
@@ -141,8 +142,8 @@ class FusionEstimator:
             if att is None or not self._imu_fresh(t, carried):
                 return None
             estimate = build_estimate(
-                carried, self.cfg, R_l_b=att.R_n_b, rot_cov=attitude_noise(self.cfg, "good"),
-                rates=att.rates, t_capture=t, t_source=math.nan, state="good",
+                carried, self.cfg, R_l_b=att.R_n_b, rot_cov=attitude_noise(self.cfg, Quality.GOOD),
+                rates=att.rates, t_capture=t, t_source=math.nan, state=Quality.GOOD,
                 reset_counter=self.reset_counter)
             if estimate is None or horizontal_std(carried) > self.cfg.publish_max_std_m:
                 return None

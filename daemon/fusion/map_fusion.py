@@ -18,9 +18,10 @@ from daemon.fusion.config import FusionConfig
 from daemon.fusion.output import attitude_noise, inflation
 from daemon.fusion.state import ANCHOR, LOG_SCALE, POS, NavFilter
 from vo.pose_optimizer import MAD_TO_SIGMA
+from vo.result import Quality
 
 log = logging.getLogger("sdvl.fusion")
-TRACKED = ("good", "insufficient", "bad")
+TRACKED = (Quality.GOOD, Quality.INSUFFICIENT, Quality.BAD)
 RANGE_FRESH_S = 0.5  # a rangefinder reading this close to a frame measures its height
 MIN_SCENE_POINTS = 20  # matched map points for a median height
 
