@@ -8,7 +8,6 @@ import csv
 import json
 import os
 import resource
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -17,11 +16,11 @@ from pathlib import Path
 import numpy as np
 
 from sdvl.errors import InputError
+from sim.replay.progress import progress_bar
 from sim.track_methods import METHODS, alignment, build_tracker, check_method, load_config
 from sim.trajectory import Trajectory, write_tum
 from vo.result import Quality
 
-PROGRESS_EVERY_S = 2.0
 FRAME_COLUMNS = ("t", "quality", "matches", "attempts", "ransac_hypotheses", "inliers",
                  "keyframe", "new_segment", "error_m")
 
@@ -150,7 +149,7 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
                                                                      *slow_mapping).offer
     log = TrackLog(frame_rows)
     pace = camera_rate() if paced else lambda t: None
-    last_print = log.started
+    bar = progress_bar("track", max_frames or len(sequence), enabled=not quiet)
     try:
         for t, image in sequence.frames(max_frames):
             pace(t)
@@ -160,15 +159,11 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
                 continue
             if memory_every and log.n_frames % memory_every == 0:
                 log.memory.append(memory_sample(tracker, log.n_frames))
-            now = time.perf_counter()
-            if not quiet and now - last_print > PROGRESS_EVERY_S:
-                last_print = now
-                print(f"\rframe {log.n_frames}  tracked {len(log.poses)}  {result.quality:<12}",
-                      end="", file=sys.stderr, flush=True)
+            bar.set_postfix(tracked=len(log.poses), quality=result.quality, refresh=False)
+            bar.update()
     finally:
         tracker.close()
-    if not quiet:
-        print(file=sys.stderr)
+        bar.close()
     estimate = (Trajectory.from_matrices(np.array(log.times), np.array(log.poses))
                 if log.poses else None)
     report = build_report(sequence, log.n_frames, estimate, np.array(log.segment), log.timings,
