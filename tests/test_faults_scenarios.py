@@ -52,15 +52,16 @@ def test_what_is_not_the_bound_autopilot_never_reaches_the_fusion(service_side):
     assert service_side["reboot"].resets <= 1
 
 
-def test_without_the_binding_a_second_system_steers_the_fusion(flight, service_side):
+def test_without_the_binding_the_fusion_still_takes_no_copy(flight, service_side):
     """The same second vehicle with every message handed to the fusion (the service before
-    this binding): the estimate suffers, so the test above measures the binding."""
+    the binding): its clock runs 0.2 s behind, so its messages carry stamps the real ones had,
+    and the fusion takes no stamp twice (repeats.py): as good as with the binding."""
     unfiltered = run_scenarios(flight, ["second-system"], seed=3, window=WINDOW,
                                filtered=False)[0]
     bound = service_side["second-system"]
     print(f"\nunfiltered {unfiltered}")
-    assert (unfiltered.beyond_3_sigma > bound.beyond_3_sigma + 10
-            or unfiltered.resets > bound.resets or unfiltered.published < bound.published)
+    assert unfiltered.beyond_3_sigma <= bound.beyond_3_sigma + 0.005 * bound.published
+    assert unfiltered.resets == bound.resets == 0
 
 
 def test_mutated_packets_keep_valid_crcs():

@@ -1,18 +1,21 @@
-"""The IMU gate (daemon/fusion/imu_gate.py): duplicates and spikes are kept from the filter, a
-real change of acceleration passes, and a stream that keeps failing is dropped and taken back."""
+"""What the fusion keeps from its filter: a message repeating a stamp (repeats.py) and an IMU
+spike (imu_gate.py); a real change of acceleration passes, and an IMU stream that keeps failing
+is dropped and taken back."""
 
 from __future__ import annotations
 
 import numpy as np
+from pymavlink.dialects.v20 import common as mavlink2
 
 from daemon.fusion.imu_gate import READMIT_S, SPIKE_FLOOR, ImuGate
+from daemon.fusion.repeats import Repeats
 
 HOVER = np.array([0.0, 0.0, -9.81])
 
 
 def feed(gate: ImuGate, accels, t0: float = 0.0, hz: float = 50.0, source: str = "SCALED_IMU"):
     """Admit each acceleration in turn at `hz`; the verdicts."""
-    return [gate.admit(source, t0 + k / hz, t0 + k / hz, a) for k, a in enumerate(accels)]
+    return [gate.admit(source, t0 + k / hz, a) for k, a in enumerate(accels)]
 
 
 def noisy(n: int, seed: int = 0, mean: np.ndarray = HOVER) -> list[np.ndarray]:
@@ -36,11 +39,17 @@ def test_a_spike_is_rejected_and_a_lasting_change_passes_within_half_the_window(
     assert all(verdicts[104:])  # the median has moved: the new acceleration is real
 
 
-def test_a_duplicate_stamp_is_not_integrated_twice():
-    gate = ImuGate()
-    feed(gate, noisy(20))
-    assert gate.admit("SCALED_IMU", 19 / 50, 0.5, HOVER) is False
-    assert gate.admit("HIGHRES_IMU", 19 / 50, 0.5, HOVER) is True  # another stream's own stamps
+def test_a_repeated_stamp_is_a_copy_per_message_kind_and_sensor():
+    repeats = Repeats()
+    pressure = mavlink2.MAVLink_scaled_pressure_message(1000, 1013.0, 0.0, 2000, 0)
+    assert not repeats.seen(pressure, 1.0) and repeats.seen(pressure, 1.0)
+    assert not repeats.seen(pressure, 0.98)  # late, not a copy: the filter replays it
+    imu = mavlink2.MAVLink_scaled_imu_message(1000, 0, 0, -1000, 0, 0, 0, 0, 0, 0, 0)
+    assert not repeats.seen(imu, 1.0)  # another kind's own stamps
+    ranges = [mavlink2.MAVLink_distance_sensor_message(1000, 10, 1200, 150, 0, k, 25, 0)
+              for k in (0, 1)]
+    assert not repeats.seen(ranges[0], 1.0) and not repeats.seen(ranges[1], 1.0)  # two sensors
+    assert repeats.count == 1
 
 
 def test_a_failing_stream_is_dropped_said_and_taken_back_when_clean():

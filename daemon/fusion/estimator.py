@@ -42,6 +42,7 @@ from daemon.fusion.config import FusionConfig
 from daemon.fusion.imu_gate import ImuGate
 from daemon.fusion.map_fusion import FrameInput, MapFusion, Readings, frame_input
 from daemon.fusion.output import Continuity, attitude_noise, build_estimate, horizontal_std
+from daemon.fusion.repeats import Repeats
 from daemon.fusion.rest import RestDetector
 from daemon.fusion.sensors import (
     BARO_PRIORITY,
@@ -85,6 +86,7 @@ class FusionEstimator:
         self.sources: dict[str, str] = {}  # "imu"/"baro" -> the message type fused
         self._choices: dict[str, SourceChoice] = {}
         self.imu_gate = ImuGate(report)
+        self.repeats = Repeats()
         self.dropped_stamps = 0
         self._inbox: deque[tuple[float, object]] = deque(maxlen=INBOX_LIMIT)
         self._lock = threading.Lock()  # the inbox, between the link's thread and ours
@@ -240,6 +242,8 @@ class FusionEstimator:
         if parsed is None:
             return
         remote, samples = parsed
+        if self.repeats.seen(msg, remote):
+            return
         t = self.clock.to_local(remote, arrival)
         if t is None:
             self.dropped_stamps += 1
@@ -251,7 +255,7 @@ class FusionEstimator:
                 self.rest.on_rates(t, sample.rates)
                 self.timeline.add(t, "attitude", None)  # late ones replay what used it
             elif isinstance(sample, Imu) and self.cfg.use_imu:
-                if self.imu_gate.admit(sample.source, remote, t, sample.accel):
+                if self.imu_gate.admit(sample.source, t, sample.accel):
                     self.rest.on_imu(t, sample.accel)
                     self._add_stream("imu", sample, IMU_PRIORITY)
             elif isinstance(sample, LocalPosition):

@@ -4,8 +4,6 @@ A corrupt or forged IMU message arrives with a valid CRC, and the filter integra
 acceleration: one wrong sample becomes a velocity error its covariance does not know of. Each
 stream (message type) is checked on its own:
 
-- duplicate: a stream never sends two samples with one stamp, so a second one is a corrupt or
-  forged copy (late samples are fine: the filter replays them in order);
 - spike: an acceleration further from the median of the stream's last WINDOW samples than
   SPIKE_FLOOR (or SPIKE_SIGMAS robust deviations, for a noisier stream) is no motion a vehicle
   makes in one sample; a real change lasts, moves the median within half the window and passes;
@@ -28,7 +26,6 @@ WINDOW = 7
 SPIKE_FLOOR = 20.0  # m/s^2, 2 g: beyond a filtered IMU's vibration and a step of thrust
 SPIKE_SIGMAS = 6.0
 MAD_TO_SIGMA = 1.4826
-STAMPS_KEPT = 50  # a second's samples of a fast stream: duplicates come next to their original
 DROP_WINDOW_S = 2.0
 DROP_SHARE = 0.2  # a healthy stream fails almost none: vibration stays under the floor
 READMIT_S = 10.0
@@ -39,14 +36,13 @@ class _Stream:
     """One stream's recent samples and verdicts."""
 
     recent: deque = field(default_factory=lambda: deque(maxlen=WINDOW))
-    stamps: deque = field(default_factory=lambda: deque(maxlen=STAMPS_KEPT))
     verdicts: deque = field(default_factory=deque)  # (t, passed)
     dropped_since: float | None = None
     clean_since: float | None = None
 
 
 class ImuGate:
-    """`admit(source, remote_stamp, t, accel)` says whether the filter may use a sample;
+    """`admit(source, t, accel)` says whether the filter may use a sample;
     `report(text)` hears when a stream is dropped or taken back."""
 
     def __init__(self, report: Callable[[str], None] | None = None):
@@ -54,12 +50,11 @@ class ImuGate:
         self.rejected = 0
         self._streams: dict[str, _Stream] = {}
 
-    def admit(self, source: str, remote_stamp: float, t: float, accel: np.ndarray) -> bool:
-        """Whether the sample of `source` stamped `remote_stamp` (the autopilot's seconds;
-        `t` ours) with specific force `accel` (m/s^2) may be integrated."""
+    def admit(self, source: str, t: float, accel: np.ndarray) -> bool:
+        """Whether the sample of `source` at time `t` with specific force `accel` (m/s^2) may
+        be integrated."""
         s = self._streams.setdefault(source, _Stream())
-        passed = remote_stamp not in s.stamps and not self._spike(s, accel)
-        s.stamps.append(remote_stamp)
+        passed = not self._spike(s, accel)
         s.recent.append(accel)
         self.rejected += not passed
         return self._healthy(source, s, t, passed) and passed
