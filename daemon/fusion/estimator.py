@@ -251,9 +251,9 @@ class FusionEstimator:
         for sample in samples:
             sample = dataclasses.replace(sample, t=t)
             if isinstance(sample, Attitude):
-                self.attitude.add(sample)
-                self.rest.on_rates(t, sample.rates)
-                self.timeline.add(t, "attitude", None)  # late ones replay what used it
+                if self.attitude.add(sample):
+                    self.rest.on_rates(t, sample.rates)
+                    self.timeline.add(t, "attitude", None)  # late ones replay what used it
             elif isinstance(sample, Imu) and self.cfg.use_imu:
                 if self.imu_gate.admit(sample.source, t, sample.accel):
                     self.rest.on_imu(t, sample.accel)

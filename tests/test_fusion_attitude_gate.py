@@ -1,0 +1,34 @@
+"""The attitude track keeps only attitudes a vehicle can have next to its neighbours
+(daemon/fusion/attitude.py): a corrupt tilt or heading is refused, a lasting change followed."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from daemon.fusion.attitude import STRIKES, AttitudeTrack
+from daemon.fusion.sensors import Attitude
+
+STILL = np.zeros(3)
+
+
+def attitude(t: float, roll: float = 0.0, yaw: float = 0.0, rates=STILL) -> Attitude:
+    return Attitude(t, Rotation.from_euler("ZYX", [yaw, 0.0, roll]).as_matrix(), np.asarray(rates))
+
+
+def test_a_turn_is_kept_and_a_jump_refused():
+    track = AttitudeTrack(timeout_s=0.1, keep_s=5.0)
+    turning = [track.add(attitude(0.02 * k, yaw=0.04 * k, rates=[0, 0, 2.0])) for k in range(50)]
+    assert all(turning)  # 2 rad/s of yaw
+    assert not track.add(attitude(1.0, roll=0.6, yaw=2.0))  # 34 degrees of roll in 20 ms
+    assert not track.add(attitude(1.02, yaw=2.04, rates=[50.0, 0.0, 2.0]))  # absurd rates
+    assert track.add(attitude(1.02, yaw=2.04, rates=[0, 0, 2.0]))
+    assert track.refused == 2
+
+
+def test_a_lasting_change_is_followed():
+    track = AttitudeTrack(timeout_s=0.1, keep_s=5.0)
+    for k in range(10):
+        track.add(attitude(0.02 * k))
+    kept = [track.add(attitude(0.2 + 0.02 * k, yaw=1.0)) for k in range(STRIKES + 2)]
+    assert kept == [False] * (STRIKES - 1) + [True] * 3  # the AHRS reset its heading
