@@ -101,10 +101,14 @@ def test_fuzz_bounded_and_seeded(flight):
     assert (again.published, again.beyond_3_sigma) == (first.published, first.beyond_3_sigma)
 
 
-@pytest.mark.xfail(reason="the fusion's own gating (issue 28, the lead's part) does not yet "
-                          "keep errors within 3 sigma when values are plausible but wrong or "
-                          "the autopilot is silent for seconds", strict=False)
-def test_fusion_is_never_confidently_wrong_under_mutated_values_or_a_link_loss(flight):
-    s = run_scenarios(flight, ["imu-mutated", "all-mutated", "link-loss-5s", "reboot"], seed=3,
-                      window=WINDOW)
+def test_fusion_is_never_confidently_wrong_under_mutated_values(flight):
+    s = run_scenarios(flight, ["imu-mutated", "all-mutated"], seed=3, window=WINDOW)
+    assert all(score.beyond_share <= 0.01 for score in s), s
+
+
+@pytest.mark.xfail(reason="issue 28: with the autopilot silent for 2-5 s (no IMU, no attitude) "
+                          "in this flight's first leg, 7-13% of the positions are beyond 3 sigma "
+                          "(0 in the 82 s survey of `sdvl faults scenarios`)", strict=True)
+def test_fusion_is_never_confidently_wrong_while_the_autopilot_is_silent(flight):
+    s = run_scenarios(flight, ["link-loss-5s", "reboot"], seed=3, window=WINDOW)
     assert all(score.beyond_share <= 0.01 for score in s), s
