@@ -23,6 +23,8 @@ def progress_bar(description: str, total: int | None, iterable: Iterable | None 
 class Progress:
     """The replay's bar: frames offered, with processed and tracked beside it."""
 
+    interval_s = 0.25  # how often the replay's loop updates it
+
     def __init__(self, total: int, enabled: bool):
         self.total = max(total, 1)
         self.bar = progress_bar("replay", self.total, enabled=enabled)
