@@ -1,24 +1,29 @@
-"""Which autopilot parameters a vision source needs, and what is wrong with the ones read back.
+"""What the autopilot parameter checks share: findings, the context they judge in, the wire
+encoding of parameter values and which parameters need a reboot.
 
-The rules follow docs/autopilot-interface.md (ArduPilot AP_VisualOdom + EKF3, PX4 EKF2 external
-vision). Each finding names the parameter, what to set and why.
+The rules themselves are in ardupilot_params.py and px4_params.py beside this module, the
+stream groups and their rate parameters in stream_groups.py. They follow
+docs/autopilot-interface.md and the autopilots' sources, and judge the parameter names the
+autopilot really has (older and newer ArduPilot names both).
 """
 
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass
+from enum import IntEnum
 
 from pymavlink.dialects.v20 import common as mavlink2
 
 INT32 = mavlink2.MAV_PARAM_TYPE_INT32
-ARDUPILOT_NAMES = ("AHRS_EKF_TYPE", "EK3_ENABLE", "VISO_TYPE", "VISO_ORIENT", "VISO_SCALE",
-                   "VISO_DELAY_MS", "VISO_QUAL_MIN", "VISO_POS_M_NSE", "VISO_YAW_M_NSE",
-                   "EK3_SRC1_POSXY", "EK3_SRC1_VELXY", "EK3_SRC1_POSZ", "EK3_SRC1_VELZ",
-                   "EK3_SRC1_YAW")
-PX4_NAMES = ("EKF2_EV_CTRL", "EKF2_HGT_REF", "EKF2_EV_DELAY", "EKF2_EV_NOISE_MD", "EKF2_EV_QMIN",
-             "EKF2_EVP_NOISE", "EKF2_EVA_NOISE")
+VISUAL_ODOMETRY_CHECK_BIT = 1 << 18  # ARMING_CHECK / ARMING_SKIPCHK bit (AP_Arming.cpp)
+ARDUPILOT_POS_NOISE_MIN = 0.1  # VISO_POS_M_NSE: the lowest value ArduPilot documents
 DELAY_TOLERANCE_MS = 10
+# names whose change takes effect only after a reboot (@RebootRequired, or read at EKF start)
+ARDUPILOT_REBOOT = ("VISO_TYPE", "VISO_DELAY_MS", "GPS_TYPE", "GPS1_TYPE", "EK3_ENABLE",
+                    "AHRS_EKF_TYPE", "SERIAL", "MAV", "SR")
+PX4_REBOOT = ("EKF2_", "MAV_")
 
 
 def wire_value(flavour: str, value: float, param_type: int) -> float:
@@ -35,105 +40,76 @@ def from_wire(flavour: str, value: float, param_type: int) -> float:
     return float(value)
 
 
+def needs_reboot(flavour: str, name: str) -> bool:
+    """Whether a changed parameter takes effect only after the autopilot reboots."""
+    prefixes = ARDUPILOT_REBOOT if flavour == "ardupilot" else PX4_REBOOT
+    return name.startswith(prefixes)
+
+
+class Severity(IntEnum):
+    """ERROR: a flight would not work or not be safe; WARNING: it works, worse than it could;
+    NOTE: for the user to know, nothing to change."""
+
+    ERROR = 0
+    WARNING = 1
+    NOTE = 2
+
+
 @dataclass(frozen=True)
 class Finding:
-    """One problem: `severity` is 'error' (vision will not work) or 'warning' (works badly)."""
+    """One thing check-autopilot says. `set_to` is what --apply writes to parameter `name`."""
 
-    severity: str
+    severity: Severity
     name: str
     value: float | None
-    fix: str
+    message: str
+    set_to: float | None = None
+    is_param: bool = True
 
     def __str__(self) -> str:
-        shown = "missing" if self.value is None else f"{self.value:g}"
-        return f"{self.severity.upper():7} {self.name} = {shown}: {self.fix}"
+        head = f"{self.severity.name:7} {self.name}"
+        if self.is_param:
+            head += " (not on this autopilot)" if self.value is None else f" = {self.value:g}"
+        if self.set_to is not None:
+            head += f": set {self.set_to:g}"
+        return f"{head}: {self.message}"
 
 
-def parameter_names(flavour: str) -> tuple[str, ...]:
-    """The parameters to read for 'ardupilot' or 'px4'."""
-    return ARDUPILOT_NAMES if flavour == "ardupilot" else PX4_NAMES
+@dataclass(frozen=True)
+class CheckContext:
+    """What the rules need besides the parameters: the service's settings and what was
+    measured on the link. None: not known."""
+
+    output: str = "odometry"
+    vision_rate_hz: float = 30.0  # vision messages per second: the camera's rate, at most 50
+    fusion: bool = True
+    good_std_m: float = 0.05  # position std the service sends when tracking well
+    delay_ms: float | None = None  # the delay parameter's right value, measured
+    delay_basis: str = ""
+    gps_present: bool | None = None
+    origin_enabled: bool | None = None
 
 
-def check_parameters(flavour: str, params: dict[str, float | None], output: str,
-                     latency_ms: float | None = None) -> list[Finding]:
-    """Findings for the parameters read back (None = the autopilot does not have it)."""
-    rules = _ardupilot if flavour == "ardupilot" else _px4
-    return rules(params, output, latency_ms)
+def first_name(p: dict[str, float], *names: str) -> str:
+    """The first of `names` the autopilot has (newer names first), else the first."""
+    return next((n for n in names if n in p), names[0])
 
 
-def _ardupilot(p: dict, output: str, latency_ms: float | None) -> list[Finding]:
-    out: list[Finding] = []
-
-    def want(name: str, ok: bool, fix: str, severity: str = "error") -> None:
-        if p.get(name) is None:
-            out.append(Finding("error", name, None,
-                               "not on this autopilot: firmware built without VisualOdom/EKF3?"))
-        elif not ok:
-            out.append(Finding(severity, name, p[name], fix))
-
-    g = {k: (v if v is not None else float("nan")) for k, v in p.items()}
-    want("AHRS_EKF_TYPE", g.get("AHRS_EKF_TYPE") == 3, "set 3: external navigation needs EKF3")
-    want("EK3_ENABLE", g.get("EK3_ENABLE") == 1, "set 1 (reboot)")
-    want("VISO_TYPE", g.get("VISO_TYPE") in (1, 2, 3),
-         "set 3 (generic MAVLink odometry, re-aligns on resets) and reboot")
-    want("VISO_ORIENT", g.get("VISO_ORIENT") == 0,
-         "set 0: the companion already turns camera axes into body FRD", "warning")
-    want("VISO_SCALE", g.get("VISO_SCALE") == 1,
-         "set 1: scale is applied by the companion (mounting.scale); it would apply twice",
-         "warning")
-    if output == "vision_position":
-        want("VISO_QUAL_MIN", g.get("VISO_QUAL_MIN", 0) <= 0,
-             "set 0: VISION_POSITION_ESTIMATE has no quality (it counts as 0)")
-    else:
-        want("VISO_QUAL_MIN", g.get("VISO_QUAL_MIN", 0) >= 0,
-             "set 0 or more, or samples marked failed are fused", "warning")
-    want("EK3_SRC1_POSXY", g.get("EK3_SRC1_POSXY") == 6, "set 6 (ExternalNav)")
-    want("EK3_SRC1_VELXY", g.get("EK3_SRC1_VELXY") in (0, 6), "set 6 (ExternalNav) or 0")
-    want("EK3_SRC1_POSZ", g.get("EK3_SRC1_POSZ") in (1, 2, 6),
-         "set 1 (Baro, usually safer) or 6 (ExternalNav)")
-    want("EK3_SRC1_VELZ", g.get("EK3_SRC1_VELZ") in (0, 6), "set 6 (ExternalNav) or 0")
-    want("EK3_SRC1_YAW", g.get("EK3_SRC1_YAW") in (1, 6),
-         "set 6 (ExternalNav, no compass) or 1 (Compass, with VISO_TYPE 2/3 aligning yaw)")
-    if g.get("EK3_SRC1_YAW") == 1 and g.get("VISO_TYPE") == 1:
-        out.append(Finding("warning", "VISO_TYPE", 1,
-                           "set 3: type 1 never aligns the vision yaw with the compass"))
-    _delay(out, "VISO_DELAY_MS", p, latency_ms, 250)
-    return out
+def delay_finding(name: str, p: dict[str, float], ctx: CheckContext,
+                  limit: float) -> Finding | None:
+    """The delay parameter against the latency measured on this link."""
+    if name not in p:
+        return None
+    if ctx.delay_ms is None:
+        return Finding(Severity.NOTE, name, p[name], "not checked: the latency was not "
+                       "measured (give --config with the camera, or --latency-ms)")
+    wanted = min(limit, max(0, round(ctx.delay_ms)))
+    measured = f"the delay measured on this link is {ctx.delay_ms:.0f} ms ({ctx.delay_basis})"
+    if abs(p[name] - wanted) <= DELAY_TOLERANCE_MS:
+        return Finding(Severity.NOTE, name, p[name], f"right within {DELAY_TOLERANCE_MS} ms: "
+                       + measured)
+    return Finding(Severity.WARNING, name, p[name], measured, wanted)
 
 
-def _px4(p: dict, output: str, latency_ms: float | None) -> list[Finding]:
-    out: list[Finding] = []
-    ctrl = p.get("EKF2_EV_CTRL")
-    if ctrl is None:
-        out.append(Finding("error", "EKF2_EV_CTRL", None, "not on this autopilot: PX4 < 1.14?"))
-    else:
-        bits = int(ctrl)
-        if not bits & 1:
-            out.append(Finding("error", "EKF2_EV_CTRL", ctrl,
-                               "set 15 (horizontal and vertical position, velocity, yaw) or 11"))
-        if bits & 4 and output == "vision_position":
-            out.append(Finding("warning", "EKF2_EV_CTRL", ctrl,
-                               "velocity fusion (bit 2) needs mavlink.output = \"odometry\": PX4 "
-                               "ignores VISION_SPEED_ESTIMATE"))
-        if p.get("EKF2_HGT_REF") == 3 and not bits & 2:
-            out.append(Finding("error", "EKF2_EV_CTRL", ctrl,
-                               "set bit 1 (vertical position): EKF2_HGT_REF is Vision"))
-    if p.get("EKF2_EV_NOISE_MD") not in (0, None):
-        out.append(Finding("warning", "EKF2_EV_NOISE_MD", p["EKF2_EV_NOISE_MD"],
-                           "set 0: use the covariance the companion sends"))
-    if (p.get("EKF2_EV_QMIN") or 0) > 0 and output == "vision_position":
-        out.append(Finding("error", "EKF2_EV_QMIN", p["EKF2_EV_QMIN"],
-                           "set 0: VISION_POSITION_ESTIMATE carries no quality"))
-    _delay(out, "EKF2_EV_DELAY", p, latency_ms, 300)
-    return out
-
-
-def _delay(out: list[Finding], name: str, p: dict, latency_ms: float | None,
-           limit: int) -> None:
-    """Compare the delay parameter with the measured capture-to-send latency."""
-    if latency_ms is None or p.get(name) is None:
-        return
-    wanted = min(limit, round(latency_ms))
-    if abs(p[name] - wanted) > DELAY_TOLERANCE_MS:
-        out.append(Finding("warning", name, p[name],
-                           f"set {wanted}: the measured capture-to-send latency"))
+def finite(value: float | None) -> bool:
+    return value is not None and math.isfinite(value)

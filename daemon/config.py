@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from daemon.fusion.config import FusionConfig
+from daemon.link_url import parse_link_url
 from sdvl.errors import InputError
 from sdvl.tables import dataclass_from_table, read_toml, suggest
 
@@ -50,7 +51,7 @@ class MountingConfig:
 class MavlinkConfig:
     """The autopilot link and what is sent on it."""
 
-    link: str = "udpout:127.0.0.1:14550"
+    link: str = "/dev/serial0,921600"
     system_id: int = 1
     component_id: int = 197
     output: str = "odometry"
@@ -119,6 +120,10 @@ def _check_ranges(cfg: Config, path: Path | None) -> None:
     need(cfg.mounting.preset == "custom" or not any(angles),
          "mounting.roll_deg/pitch_deg/yaw_deg are used only with mounting.preset = \"custom\"")
     need(cfg.mounting.scale > 0, "mounting.scale must be > 0")
+    try:
+        parse_link_url(cfg.mavlink.link)
+    except InputError as exc:
+        raise InputError(exc.message, path) from None
     need(cfg.mavlink.output in OUTPUTS, f"mavlink.output must be one of {', '.join(OUTPUTS)}")
     need(0 < cfg.mavlink.max_rate_hz <= 50,
          "mavlink.max_rate_hz must be in (0, 50]: autopilots use at most one sample per 20 ms")

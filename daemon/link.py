@@ -1,13 +1,10 @@
-"""Byte transports to the autopilot on asyncio: UDP (connect or listen), TCP client, serial.
+"""Byte transports to the autopilot on asyncio: UDP (listen or send), TCP (connect or accept),
+serial.
 
 A Link delivers received bytes to a callback and writes bytes when it can. It opens itself in
 the background and reopens after errors with back-off, so a missing device or a port in use is
-logged once per attempt and retried, never fatal. URLs:
-
-    udpout:HOST:PORT    send to HOST:PORT, receive the replies
-    udpin:ADDR:PORT     listen on ADDR:PORT, send to the last peer heard
-    tcp:HOST:PORT       connect to a TCP server (SITL, mavlink-router)
-    serial:DEV:BAUD     serial port (DEV:BAUD with a /dev/ path works too)
+logged once per attempt and retried, never fatal. The URL forms (pymavlink's) are in
+daemon/link_url.py.
 """
 
 from __future__ import annotations
@@ -17,47 +14,13 @@ import contextlib
 import logging
 import os
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import serial
 
-from sdvl.errors import InputError
+from daemon.link_url import LinkKind, LinkSpec, parse_link_url
 
 log = logging.getLogger("sdvl.link")
 MAX_BACKLOG = 64 * 1024  # bytes queued for a slow serial port or TCP peer
-
-
-@dataclass(frozen=True)
-class LinkSpec:
-    """A parsed link URL."""
-
-    kind: str  # udpout | udpin | tcp | serial
-    host: str = ""
-    port: int = 0
-    device: str = ""
-    baud: int = 0
-
-    def __str__(self) -> str:
-        if self.kind == "serial":
-            return f"serial:{self.device}:{self.baud}"
-        return f"{self.kind}:{self.host}:{self.port}"
-
-
-def parse_link_url(url: str) -> LinkSpec:
-    """LinkSpec from a URL; InputError with the accepted forms when it cannot be read."""
-    forms = "udpout:HOST:PORT, udpin:ADDR:PORT, tcp:HOST:PORT or serial:/dev/ttyX:BAUD"
-    if url.startswith("/dev/"):
-        url = "serial:" + url
-    kind, _, rest = url.partition(":")
-    head, _, tail = rest.rpartition(":")
-    if kind not in ("udpout", "udpin", "tcp", "serial") or not head or not tail.isdigit():
-        raise InputError(f"mavlink.link '{url}' is not one of {forms}")
-    number = int(tail)
-    if kind == "serial":
-        return LinkSpec(kind, device=head, baud=number)
-    if not 0 < number < 65536:
-        raise InputError(f"mavlink.link '{url}': port must be 1..65535")
-    return LinkSpec(kind, host=head, port=number)
 
 
 class Link:
@@ -69,6 +32,7 @@ class Link:
         self.on_bytes = on_bytes
         self.retry = (retry_min_s, retry_max_s)
         self.connected = False
+        self.last_error: str | None = None  # why the last attempt to open failed
         self.bytes_in = 0
         self.bytes_out = 0
         self._task: asyncio.Task | None = None
@@ -84,11 +48,13 @@ class Link:
             try:
                 await self._open()
             except (OSError, serial.SerialException) as exc:
+                self.last_error = str(exc)
                 log.warning("link %s: cannot open (%s); retrying in %.1f s", self.spec, exc, delay)
                 await asyncio.sleep(delay)
                 delay = min(2 * delay, self.retry[1])
                 continue
             log.info("link %s: open", self.spec)
+            self.last_error = None
             self.connected, delay = True, self.retry[0]
             self._broken.clear()
             await self._broken.wait()
@@ -129,7 +95,8 @@ class _Datagrams(asyncio.DatagramProtocol):
         self.link = link
 
     def datagram_received(self, data: bytes, addr: tuple) -> None:
-        self.link.peer = addr if self.link.spec.kind == "udpin" else self.link.peer
+        if self.link.spec.kind == LinkKind.UDP_IN:
+            self.link.peer = addr
         self.link._received(data)
 
     def error_received(self, exc: Exception) -> None:
@@ -145,7 +112,7 @@ class UdpLink(Link):
     async def _open(self) -> None:
         loop = asyncio.get_running_loop()
         address = (self.spec.host, self.spec.port)
-        if self.spec.kind == "udpout":
+        if self.spec.kind == LinkKind.UDP_OUT:
             self.peer = address
             self._transport, _ = await loop.create_datagram_endpoint(
                 lambda: _Datagrams(self), remote_addr=address)
@@ -161,7 +128,7 @@ class UdpLink(Link):
     def write(self, data: bytes) -> bool:
         if self._transport is None or self.peer is None:
             return False
-        if self.spec.kind == "udpout":
+        if self.spec.kind == LinkKind.UDP_OUT:
             self._transport.sendto(data)
         else:
             self._transport.sendto(data, self.peer)
@@ -170,25 +137,38 @@ class UdpLink(Link):
 
 
 class _Stream(asyncio.Protocol):
+    """One TCP connection: bytes to the link; a lost client connection breaks a client link
+    (it reconnects) and only forgets the client of a server link (it keeps listening)."""
+
     def __init__(self, link: TcpLink):
         self.link = link
+        self.transport: asyncio.Transport | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport
+        self.link._connection_made(transport)
 
     def data_received(self, data: bytes) -> None:
         self.link._received(data)
 
     def connection_lost(self, exc: Exception | None) -> None:
-        self.link._mark_broken()
+        self.link._connection_lost(self.transport)
 
 
 class TcpLink(Link):
-    """A TCP client that reconnects when the server goes away."""
+    """tcp: a TCP client that reconnects when the server goes away."""
 
     _transport: asyncio.Transport | None = None
 
     async def _open(self) -> None:
         loop = asyncio.get_running_loop()
-        self._transport, _ = await loop.create_connection(
-            lambda: _Stream(self), self.spec.host, self.spec.port)
+        await loop.create_connection(lambda: _Stream(self), self.spec.host, self.spec.port)
+
+    def _connection_made(self, transport: asyncio.Transport) -> None:
+        self._transport = transport
+
+    def _connection_lost(self, transport: asyncio.Transport) -> None:
+        self._mark_broken()
 
     def _close(self) -> None:
         if self._transport is not None:
@@ -203,6 +183,35 @@ class TcpLink(Link):
         self._transport.write(data)
         self.bytes_out += len(data)
         return True
+
+
+class TcpServerLink(TcpLink):
+    """tcpin: listen and serve one TCP client at a time; a new client replaces the old one
+    (as pymavlink's tcpin does)."""
+
+    _server: asyncio.AbstractServer | None = None
+
+    async def _open(self) -> None:
+        loop = asyncio.get_running_loop()
+        self._server = await loop.create_server(lambda: _Stream(self), self.spec.host,
+                                                self.spec.port, reuse_address=True)
+
+    def _connection_made(self, transport: asyncio.Transport) -> None:
+        if self._transport is not None and not self._transport.is_closing():
+            self._transport.close()
+        self._transport = transport
+        log.info("link %s: client %s connected", self.spec,
+                 transport.get_extra_info("peername"))
+
+    def _connection_lost(self, transport: asyncio.Transport) -> None:
+        if transport is self._transport:
+            self._transport = None
+
+    def _close(self) -> None:
+        super()._close()
+        if self._server is not None:
+            self._server.close()
+            self._server = None
 
 
 class SerialLink(Link):
@@ -277,5 +286,6 @@ class SerialLink(Link):
 def open_link(url: str, on_bytes: Callable[[bytes], None]) -> Link:
     """The Link for `url` (not yet started)."""
     spec = parse_link_url(url)
-    cls = {"udpout": UdpLink, "udpin": UdpLink, "tcp": TcpLink, "serial": SerialLink}[spec.kind]
+    cls = {LinkKind.UDP_OUT: UdpLink, LinkKind.UDP_IN: UdpLink, LinkKind.TCP: TcpLink,
+           LinkKind.TCP_IN: TcpServerLink, LinkKind.SERIAL: SerialLink}[spec.kind]
     return cls(spec, on_bytes)

@@ -31,6 +31,7 @@ from daemon.mavlink_codec import MavlinkCodec
 from daemon.origin import OriginSetter
 from daemon.sdnotify import Notifier
 from daemon.statustext import StatusTexts
+from daemon.streams import StreamKeeper
 from daemon.tracking import TrackedFrame, TrackingThread
 from sdvl.errors import InputError
 
@@ -86,6 +87,7 @@ class Service:
                        if config.origin.enabled else None)
         self.texts = StatusTexts(config.mavlink.statustext_interval_s, self._send_text)
         self.link = open_link(config.mavlink.link, self.codec.feed)
+        self.streams = self._stream_keeper()
         self._last_sent_t: float | None = None
         self._last_frame_time = time.monotonic()
         self._reset_counter = 0
@@ -93,6 +95,13 @@ class Service:
         self._loop: asyncio.AbstractEventLoop | None = None
         self.capture: CaptureThread | None = None
         self.tracking: TrackingThread | None = None
+
+    def _stream_keeper(self) -> StreamKeeper:
+        """Asks the autopilot for the messages the estimator needs on connect and after a
+        reboot, and says which parameter to set when one does not come (daemon/streams.py)."""
+        return StreamKeeper(self.codec, self.watch, self.link.spec.usb,
+                            report=lambda text, severity: self.texts.report(
+                                text, time.monotonic(), severity))
 
     def _default_estimator(self) -> Estimator:
         """The EKF when [fusion] is enabled, else the pass-through."""
@@ -228,6 +237,7 @@ class Service:
             self.stats.timesync_replies += 1
         for event in self.watch.on_message(msg, now):
             self._autopilot_event(event, now)
+        self.streams.on_message(msg, now)
         if self.origin is not None:
             text = self.origin.on_message(msg)
             if text:
@@ -269,6 +279,7 @@ class Service:
             now = time.monotonic()
             for event in self.watch.check(now):
                 self._autopilot_event(event, now)
+            self.streams.tick(now)
             if self.origin is not None:
                 target = ((self.watch.system_id, self.watch.component_id)
                           if self.watch.alive else None)

@@ -9,7 +9,6 @@ import tomllib
 import pytest
 
 from daemon.config import EXAMPLE_CONFIG, SECTIONS, Config, config_from_dict, load_config
-from daemon.link import parse_link_url
 from sdvl.cli import main
 from sdvl.errors import InputError
 
@@ -51,21 +50,6 @@ def test_numbers_accept_integers_and_custom_mounting_accepts_angles():
                             "mounting": {"preset": "custom", "pitch_deg": -45}})
     assert cfg.mavlink.max_rate_hz == 30.0 and isinstance(cfg.mavlink.max_rate_hz, float)
     assert cfg.mounting.pitch_deg == -45.0
-
-
-@pytest.mark.parametrize(("url", "kind"), [
-    ("udpout:127.0.0.1:14550", "udpout"), ("udpin:0.0.0.0:14550", "udpin"),
-    ("tcp:localhost:5760", "tcp"), ("serial:/dev/ttyAMA0:921600", "serial"),
-    ("/dev/ttyACM0:115200", "serial"),
-])
-def test_link_urls(url, kind):
-    assert parse_link_url(url).kind == kind
-
-
-@pytest.mark.parametrize("url", ["udp:1.2.3.4:5", "udpout:host", "tcp:host:99999", "/dev/tty"])
-def test_bad_link_urls(url):
-    with pytest.raises(InputError, match=r"mavlink\.link"):
-        parse_link_url(url)
 
 
 def test_sdvl_run_bad_config_is_one_line_and_exit_2(tmp_path, capsys):

@@ -156,7 +156,8 @@ def test_origin_resent_until_confirmed(udp_run):
         1, 1, mavlink2.MAV_FRAME_GLOBAL, round(LAT * 1e7), round(LON * 1e7))
     assert c.z == pytest.approx(ALT)
     assert (c.current, c.autocontinue, c.param1, c.param2, c.param3, c.param4) == (0,) * 6
-    requests = sim.messages("COMMAND_LONG")
+    requests = [r for r in sim.messages("COMMAND_LONG")
+                if r.msg.command == mavlink2.MAV_CMD_REQUEST_MESSAGE]
     assert len(requests) == len(commands)  # each attempt asks for GPS_GLOBAL_ORIGIN too
     r = requests[0].msg
     assert (r.target_system, r.target_component, r.command, r.confirmation) == (
