@@ -1,0 +1,185 @@
+"""What a closed-loop flight did, in the figures a user acts on: each step's outcome, when the
+autopilot started using our estimate, the hold drift and the square's corner errors in truth,
+the autopilot's height steps, failsafes, the latency its VISO_DELAY_MS must hold; and the
+expert figures of `sdvl replay` (ATE, NEES, heading frames) of the messages it received.
+
+Truth targets: a goto's target is in the autopilot's local frame; the truth it is scored against
+is the vehicle's true position when it armed plus the target's offset from the autopilot's own
+position then (what a pilot means by "2 m north of where it took off").
+"""
+
+from __future__ import annotations
+
+import statistics
+from dataclasses import dataclass
+
+import numpy as np
+
+from daemon.latency import ardupilot_delay_ms
+from sim.autopilot.records import EventKind
+from sim.flight.loop import FlightRun
+from sim.flight.mission import Action
+from sim.flight.runner import Outcome, StepResult
+from sim.metrics import interpolate
+from sim.replay.fusion_scores import takeoff_time
+from sim.replay.harness import ReplayRun
+from sim.replay.report import build_report
+
+FAILSAFE_WORDS = ("failsafe", "EKF variance")
+
+
+@dataclass(frozen=True)
+class HoldScore:
+    """A hold step in truth: the largest horizontal and vertical distance from where it
+    started, metres."""
+
+    mode: str
+    seconds: float
+    drift_xy_m: float
+    drift_z_m: float
+
+
+@dataclass(frozen=True)
+class CornerScore:
+    """A goto in truth: its target (north, east, up from home) and the distance from it after
+    the settle time (None: never arrived by the autopilot's estimate), metres."""
+
+    target: tuple[float, float, float]
+    error_m: float | None
+
+
+@dataclass(frozen=True)
+class HeightStep:
+    """A jump of the autopilot's height estimate (an EKF reset)."""
+
+    t: float
+    step_m: float
+    why: str
+
+
+@dataclass
+class FlightScores:
+    """The scored flight (see the module doc); `expert` is `sdvl replay`'s report dict."""
+
+    steps_done: int
+    failed: StepResult | None
+    armed: bool
+    takeoff_s: float | None
+    extnav_s: float | None
+    holds: list[HoldScore]
+    corners: list[CornerScore]
+    height_steps: list[HeightStep]
+    failsafes: list[str]
+    latency_ms: list[float]
+    suggested_delay_ms: float | None
+    viso_delay_ms: float | None
+    expert: dict
+
+    @property
+    def extnav_after_takeoff_s(self) -> float | None:
+        """Seconds from lift-off until the autopilot used our estimate (negative: before)."""
+        if self.extnav_s is None or self.takeoff_s is None:
+            return None
+        return self.extnav_s - self.takeoff_s
+
+
+def truth_at(run: FlightRun, t: float) -> np.ndarray:
+    """The vehicle's true position (NED) at time t."""
+    at, _ = interpolate(run.truth, np.array([t]), max_gap=np.inf)
+    return at.positions[0]
+
+
+def hold_scores(run: FlightRun) -> list[HoldScore]:
+    """Each finished hold step in truth, with the mode set before it."""
+    out, mode = [], "?"
+    for r in run.steps:
+        if r.step.action is Action.MODE:
+            mode = r.step.value
+        if r.step.action is not Action.HOLD or r.ended is None:
+            continue
+        inside = (run.truth.t >= r.started) & (run.truth.t <= r.ended)
+        p = run.truth.positions[inside]
+        if len(p) < 2:
+            continue
+        d = p - p[0]
+        out.append(HoldScore(mode, r.ended - r.started,
+                             float(np.max(np.linalg.norm(d[:, :2], axis=1))),
+                             float(np.max(np.abs(d[:, 2])))))
+    return out
+
+
+def corner_scores(run: FlightRun) -> list[CornerScore]:
+    """Each goto step's truth error (see the module doc)."""
+    arm = next((r for r in run.steps if r.step.action is Action.ARM and r.home is not None),
+               None)
+    out = []
+    for r in run.steps:
+        if r.step.action is not Action.GOTO or r.target is None or arm is None:
+            continue
+        offset = r.target - arm.home
+        target = (float(offset[0]), float(offset[1]), float(-offset[2]))
+        if r.outcome is not Outcome.DONE:
+            out.append(CornerScore(target, None))
+            continue
+        goal = truth_at(run, arm.ended) + offset
+        out.append(CornerScore(target, float(np.linalg.norm(truth_at(run, r.ended) - goal))))
+    return out
+
+
+def height_steps(run: FlightRun) -> list[HeightStep]:
+    """The autopilot's height resets with their size."""
+    return [HeightStep(e.t, abs(e.value), e.detail)
+            for e in run.record.of(EventKind.HEIGHT_RESET)]
+
+
+def failsafes(run: FlightRun) -> list[str]:
+    """The autopilot's failsafe texts, with their times."""
+    return [f"{s.t:.1f} s {s.text}" for s in run.record.statustexts
+            if any(w.lower() in s.text.lower() for w in FAILSAFE_WORDS)]
+
+
+def latencies_ms(run: FlightRun) -> list[float]:
+    """Capture to arrival at the autopilot of each vision message, ms."""
+    return [1e3 * (m.t_arrival - m.fields["time_usec"] / 1e6) for m in run.sent]
+
+
+def replay_run(run: FlightRun) -> ReplayRun:
+    """The flight as `sdvl replay`'s report reads a run."""
+    bias = (float(np.degrees(np.angle(np.mean(np.exp(1j * np.radians(run.compass_errors_deg))))))
+            if run.compass_errors_deg else None)
+    return ReplayRun(
+        name=f"{run.mission.name} ({run.mission.world} world)", realtime=run.realtime,
+        fusion=True, offered=len(run.rows), rows=run.rows, received=run.sent, flight=run.truth,
+        wall_s=run.wall_s, cpu_s=run.cpu_s, warmup_s=0.0, peak_rss_mb=_peak_rss_mb(),
+        exit_code=0, stats={"sent": len(run.sent), "lockstep": not run.realtime},
+        without=run.without, compass_bias_deg=bias)
+
+
+def _peak_rss_mb() -> float:
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def score(run: FlightRun) -> FlightScores:
+    """Everything the report says about one flight."""
+    expert, _, _ = build_report(replay_run(run), None)
+    latency = latencies_ms(run)
+    suggested = (ardupilot_delay_ms([v / 1e3 for v in latency], [], "closed loop")[0]
+                 if latency else None)
+    takeoff, _ = takeoff_time(run.truth, float(run.truth.t[0])) if len(run.truth) else (None, 0)
+    extnav = run.record.first(EventKind.EXTNAV_STARTED)
+    failed = next((r for r in run.steps if r.outcome in (Outcome.FAILED, Outcome.TIMEOUT)),
+                  None)
+    return FlightScores(
+        steps_done=sum(r.outcome is Outcome.DONE for r in run.steps), failed=failed,
+        armed=any(r.step.action is Action.ARM and r.outcome is Outcome.DONE
+                  for r in run.steps),
+        takeoff_s=takeoff, extnav_s=None if extnav is None else extnav.t,
+        holds=hold_scores(run), corners=corner_scores(run), height_steps=height_steps(run),
+        failsafes=failsafes(run), latency_ms=latency, suggested_delay_ms=suggested,
+        viso_delay_ms=run.viso_delay_ms, expert=expert)
+
+
+def median(values: list[float]) -> float | None:
+    return statistics.median(values) if values else None
