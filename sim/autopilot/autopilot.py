@@ -14,8 +14,10 @@ import logging
 import struct
 from abc import ABC, abstractmethod
 
+import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
+from sim.autopilot.dynamics import FlyingVehicle
 from sim.autopilot.options import SimOptions
 from sim.autopilot.param_store import ParamStore
 from sim.autopilot.params import ParamSpec
@@ -29,6 +31,8 @@ MAV_CMD_DO_SET_GLOBAL_ORIGIN = 611  # common.xml (2025), not yet in pymavlink's 
 IMU_DT = 0.02  # the stand-ins' prediction step: smooth flights need no more (EKF3 runs faster)
 MAX_CATCH_UP_S = 0.1
 STATUSTEXT_LEN = 50
+FAST_LOOP_STEPS = 8  # 400 Hz: ArduCopter's main loop rate (SCHED_LOOP_RATE) per IMU_DT
+MOTORS_STOPPED = np.zeros(4)
 
 
 class AutopilotModel(ABC):
@@ -186,17 +190,31 @@ class AutopilotModel(ABC):
             self._down_until = None
             self.boot(now)
         behind = now - self._last_step
-        if behind > MAX_CATCH_UP_S:  # a starved thread: one long step rather than a backlog
-            self._predict(now, behind - IMU_DT)
+        if behind > MAX_CATCH_UP_S and not self.flies:
+            self._predict(now, behind - IMU_DT)  # a starved thread: one long step, not a backlog
         while now - self._last_step >= IMU_DT:
             self._predict(self._last_step + IMU_DT, IMU_DT)
         for name in self.schedule.due(now):
             self._send_stream(name, now)
 
+    @property
+    def flies(self) -> bool:
+        """Whether the vehicle flies on this model's controllers (SimOptions.dynamics)."""
+        return isinstance(self.vehicle, FlyingVehicle)
+
     def _predict(self, t: float, dt: float) -> None:
         self._last_step = t
+        if self.flies:
+            self.fly(dt)
+            self.vehicle.mark()
         reading = self.sensing.read(self.vehicle, self.uptime(t), dt)
         self.estimator_step(t, reading, dt)
+
+    def fly(self, dt: float) -> None:
+        """Run the firmware's fast loop (attitude control, motors, physics) for dt; a firmware
+        without flight controllers leaves the motors stopped."""
+        for _ in range(FAST_LOOP_STEPS):
+            self.vehicle.advance(dt / FAST_LOOP_STEPS, MOTORS_STOPPED)
 
     def _send_stream(self, name: str, now: float) -> None:
         try:

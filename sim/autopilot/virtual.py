@@ -14,7 +14,6 @@ from scipy.spatial.transform import Rotation
 from sim.autopilot.autopilot import AutopilotModel
 from sim.autopilot.options import SimOptions
 from sim.autopilot.simulator import make_model
-from sim.autopilot.vehicle import Vehicle
 
 STEP_S = 0.005
 COMPANION = (1, 197)  # system, component (MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY)
@@ -27,8 +26,7 @@ class VirtualLink:
     def __init__(self, options: SimOptions, vehicle: object | None = None,
                  start: float = 1000.0) -> None:
         self.now = start
-        self.model: AutopilotModel = make_model(options, vehicle or Vehicle(options.trajectory),
-                                                start)
+        self.model: AutopilotModel = make_model(options, vehicle, start)
         self.mav = mavlink2.MAVLink(None, srcSystem=COMPANION[0], srcComponent=COMPANION[1])
         self._out_parser = ardupilotmega.MAVLink(None)
         self._in_parser = ardupilotmega.MAVLink(None)
