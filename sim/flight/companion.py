@@ -18,8 +18,8 @@ import numpy as np
 from daemon import messages
 from daemon.autopilot_watch import AutopilotWatch
 from daemon.config import Config
-from daemon.fusion.estimator import FusionEstimator
 from daemon.frames import Frame
+from daemon.fusion.estimator import FusionEstimator
 from daemon.mavlink_codec import MavlinkCodec
 from daemon.origin import OriginSetter
 from daemon.statustext import StatusTexts

@@ -26,10 +26,10 @@ from scipy.spatial.transform import Rotation
 
 from daemon.config import Config, replace
 from daemon.run_command import tracker_factory
+from sim.autopilot.dynamics import Dynamics
 from sim.autopilot.options import configured_options
 from sim.autopilot.records import AutopilotRecord
 from sim.autopilot.simulator import make_model
-from sim.autopilot.vehicle import Vehicle
 from sim.flight.companion import LockstepCompanion, Tracked
 from sim.flight.gcs import GroundStation
 from sim.flight.mission import Mission
@@ -42,7 +42,6 @@ from sim.trajectory import Trajectory
 
 TRUTH_PERIOD_S = 0.02
 MARGIN_S = 30.0  # beyond the mission's own time limits, the run is cut off
-GEAR_HEIGHT_M = 0.15  # body origin above the ground when landed (a small quad's gear)
 
 
 @dataclass(frozen=True)
@@ -93,20 +92,6 @@ class DelayLine:
             self.deliver(self._queue.popleft()[1])
 
 
-def true_pose(model: object, now: float) -> np.ndarray:
-    """T_ned_body of the vehicle the model flies, now."""
-    s = model.vehicle.state(model.uptime(now))
-    T = np.eye(4)
-    T[:3, :3] = s["rotation"].as_matrix()
-    T[:3, 3] = s["position"]
-    return T
-
-
-def _ground_vehicle() -> Vehicle:
-    """A vehicle standing on its gear at the origin, heading north."""
-    t = np.array([0.0, 1.0])
-    return Vehicle(Trajectory(t, [[0.0, 0.0, -GEAR_HEIGHT_M]] * 2, [[0, 0, 0, 1.0]] * 2))
-
 
 class ClosedLoop:
     """One flight of `mission` (see the module doc); `run()` returns the FlightRun."""
@@ -120,8 +105,9 @@ class ClosedLoop:
         self.config = lockstep_config(replace(drone_config(config, self.world.drone()),
                                               fusion={"enabled": True}))
         self.now = 0.0
-        self.model = make_model(configured_options(by_parameter=True, seed=seed),
-                                _ground_vehicle(), self.now)
+        self.model = make_model(configured_options(by_parameter=True, seed=seed,
+                                                   dynamics=Dynamics(terrain=self.world.range)),
+                                None, self.now)
         self.hidden = {name for kind in without for name in SENSOR_STREAMS[kind]}
         tm = self.timing
         self._to_autopilot = {"companion": self._receiver(), "gcs": self._receiver()}
@@ -177,7 +163,7 @@ class ClosedLoop:
 
     def _compass_error(self, yaw: float) -> None:
         """The heading the autopilot reports against the truth (its compass error), degrees."""
-        true_yaw = Rotation.from_matrix(true_pose(self.model, self.now)[:3, :3]).as_euler(
+        true_yaw = Rotation.from_matrix(self.model.vehicle.T_ned_body[:3, :3]).as_euler(
             "ZYX")[0]
         self.compass.append(float(np.degrees(np.angle(np.exp(1j * (yaw - true_yaw))))))
 
@@ -210,14 +196,14 @@ class ClosedLoop:
                     self.companion.publish(self.pending.popleft())
                 if self.now >= next_truth:
                     next_truth += TRUTH_PERIOD_S
-                    self.truth.append((self.now, true_pose(self.model, self.now)))
+                    self.truth.append((self.now, self.model.vehicle.T_ned_body))
         finally:
             self.companion.close()
         return self._result(time.process_time() - cpu0, time.perf_counter() - wall0)
 
     def _capture(self, index: int) -> None:
         """Render frame `index` where the vehicle is now and track it."""
-        image = self.world.image(index, self.now, true_pose(self.model, self.now))
+        image = self.world.image(index, self.now, self.model.vehicle.T_ned_body)
         self.pending.append(self.companion.track(index, self.now, image,
                                                  self.timing.capture_to_send_s,
                                                  time.perf_counter))

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 from dataclasses import asdict
 
-from sim.flight.mission import Action
 from sim.flight.runner import Outcome
-from sim.flight.scores import FlightScores, median
+from sim.flight.scores import FlightScores
+from sim.replay.recording import stats_ms
 from sim.replay.report import format_report
 
 HOLD_LIMIT_M = 0.3
@@ -65,13 +65,6 @@ KEYS = {
     "expert": "sdvl replay's report of the messages the autopilot received "
               "(sim/replay/report.py KEYS)",
 }
-
-
-def _percentile(values: list[float], q: float) -> float | None:
-    if not values:
-        return None
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, int(round(q / 100 * (len(ordered) - 1))))]
 
 
 def loiter_drift(s: FlightScores) -> float | None:
@@ -136,6 +129,7 @@ def verdict(s: FlightScores) -> tuple[str, bool, bool]:
 def flight_report(run: object, s: FlightScores) -> dict:
     """The report dict (KEYS) of a FlightRun and its scores."""
     line, loiter, guided = verdict(s)
+    latency = stats_ms([v / 1e3 for v in s.latency_ms])
     report = {
         "verdict": line, "ready_loiter": loiter, "ready_guided": guided,
         "mission": run.mission.name, "world": run.mission.world, "seed": run.seed,
@@ -151,7 +145,7 @@ def flight_report(run: object, s: FlightScores) -> dict:
         "height_steps": [asdict(h) for h in s.height_steps],
         "height_step_max_m": max((h.step_m for h in s.height_steps), default=0.0),
         "failsafes": s.failsafes,
-        "latency_ms_p50": median(s.latency_ms), "latency_ms_p95": _percentile(s.latency_ms, 95),
+        "latency_ms_p50": latency["median"], "latency_ms_p95": latency["p95"],
         "suggested_viso_delay_ms": s.suggested_delay_ms, "viso_delay_ms": s.viso_delay_ms,
         "expert": s.expert,
     }

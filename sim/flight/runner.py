@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 
 import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega
 from pymavlink.dialects.v20 import common as mavlink2
 
 from sim.flight.gcs import GroundStation
@@ -70,8 +71,9 @@ class MissionRunner:
 
     @property
     def done(self) -> bool:
-        return len(self.results) == len(self.mission.steps) and \
-            self.results[-1].outcome is not Outcome.RUNNING or self.failed is not None
+        finished = len(self.results) == len(self.mission.steps) and \
+            self.results[-1].outcome is not Outcome.RUNNING
+        return finished or self.failed is not None
 
     @property
     def failed(self) -> StepResult | None:
@@ -125,7 +127,7 @@ class MissionRunner:
         elif what is WaitFor.VISION:
             ok = gcs.vision_rate(now) >= VISION_MIN_HZ
         elif what is WaitFor.POSITION:
-            self._poll(mavlink2.MAVLINK_MSG_ID_EKF_STATUS_REPORT, now)
+            self._poll(ardupilotmega.MAVLINK_MSG_ID_EKF_STATUS_REPORT, now)
             ok = gcs.has_position()
         else:
             ok = any("using external nav" in t for t in gcs.texts_since(0.0))

@@ -10,7 +10,6 @@ position then (what a pilot means by "2 m north of where it took off").
 
 from __future__ import annotations
 
-import statistics
 from dataclasses import dataclass
 
 import numpy as np
@@ -108,21 +107,35 @@ def hold_scores(run: FlightRun) -> list[HoldScore]:
     return out
 
 
+def _arming(run: FlightRun) -> StepResult | None:
+    return next((r for r in run.steps if r.step.action is Action.ARM and r.home is not None),
+                None)
+
+
+def frame_offset(run: FlightRun) -> np.ndarray | None:
+    """Truth minus the autopilot's local frame: where the vehicle truly was when it armed less
+    where the autopilot thought it was (before any arming: at its first estimate)."""
+    arm = _arming(run)
+    if arm is not None:
+        return truth_at(run, arm.ended) - arm.home
+    if run.record.estimates and len(run.truth):
+        first = run.record.estimates[0]
+        return truth_at(run, first.t) - first.position
+    return None
+
+
 def corner_scores(run: FlightRun) -> list[CornerScore]:
     """Each goto step's truth error (see the module doc)."""
-    arm = next((r for r in run.steps if r.step.action is Action.ARM and r.home is not None),
-               None)
+    arm, offset = _arming(run), frame_offset(run)
     out = []
     for r in run.steps:
         if r.step.action is not Action.GOTO or r.target is None or arm is None:
             continue
-        offset = r.target - arm.home
-        target = (float(offset[0]), float(offset[1]), float(-offset[2]))
-        if r.outcome is not Outcome.DONE:
-            out.append(CornerScore(target, None))
-            continue
-        goal = truth_at(run, arm.ended) + offset
-        out.append(CornerScore(target, float(np.linalg.norm(truth_at(run, r.ended) - goal))))
+        north, east, down = r.target - arm.home
+        target = (float(north), float(east), float(-down))
+        error = (float(np.linalg.norm(truth_at(run, r.ended) - (r.target + offset)))
+                 if r.outcome is Outcome.DONE else None)
+        out.append(CornerScore(target, error))
     return out
 
 
@@ -179,7 +192,3 @@ def score(run: FlightRun) -> FlightScores:
         holds=hold_scores(run), corners=corner_scores(run), height_steps=height_steps(run),
         failsafes=failsafes(run), latency_ms=latency, suggested_delay_ms=suggested,
         viso_delay_ms=run.viso_delay_ms, expert=expert)
-
-
-def median(values: list[float]) -> float | None:
-    return statistics.median(values) if values else None

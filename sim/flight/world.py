@@ -17,7 +17,7 @@ from calib.camera import CameraModel
 from sim.synth.effects import exposure_gain, finish
 from sim.synth.flight import camera_for_size
 from sim.synth.presets import FlightSpec, preset_spec
-from sim.synth.raycast import render
+from sim.synth.raycast import cast_ray, render
 
 
 @dataclass
@@ -43,6 +43,11 @@ class FlightWorld:
         The fusion keeps its default sensor noise, as for a user who does not know the
         autopilot's sensors (the simulated autopilot's are not the synthetic flights')."""
         return _Drone({"T_b_c": self.T_b_c.copy()})
+
+    def range(self, origin: np.ndarray, direction: np.ndarray) -> float:
+        """Distance (m) along a unit NED ray to the world's static surfaces (inf: none), for
+        the autopilot's rangefinder."""
+        return float(cast_ray(self.spec.scene.quads.geometry, *origin, *direction))
 
     def image(self, index: int, t: float, T_ned_body: np.ndarray) -> np.ndarray:
         """The uint8 frame the camera takes at time t with the body at T_ned_body."""
