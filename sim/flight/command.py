@@ -15,7 +15,8 @@ from pathlib import Path
 from daemon.config import Config, load_config
 from daemon.run_command import setup_logging
 from sdvl.errors import InputError
-from sim.flight.loop import ClosedLoop, FlightRun, Timing
+from sim.flight.flight_run import FlightRun, Timing
+from sim.flight.loop import ClosedLoop
 from sim.flight.mission import DEFAULT_MISSION, Mission, load_mission
 from sim.flight.report import flight_report, format_flight
 from sim.flight.scores import score

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.flight.loop import FlightRun
+from sim.flight.flight_run import FlightRun
 from sim.flight.scores import frame_offset
 from sim.plots import _figure, _save
 

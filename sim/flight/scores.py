@@ -16,7 +16,7 @@ import numpy as np
 
 from daemon.latency import ardupilot_delay_ms
 from sim.autopilot.records import EventKind
-from sim.flight.loop import FlightRun
+from sim.flight.flight_run import FlightRun
 from sim.flight.mission import Action
 from sim.flight.runner import Outcome, StepResult
 from sim.metrics import interpolate
