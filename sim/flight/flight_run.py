@@ -44,3 +44,4 @@ class FlightRun:
     wall_s: float = 0.0
     cpu_s: float = 0.0
     load: int = 0  # busy processes beside a real-time flight
+    offered: int | None = None  # frames the camera gave (None: every frame was tracked)

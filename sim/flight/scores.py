@@ -162,7 +162,8 @@ def replay_run(run: FlightRun) -> ReplayRun:
             if run.compass_errors_deg else None)
     return ReplayRun(
         name=f"{run.mission.name} ({run.mission.world} world)", realtime=run.realtime,
-        fusion=True, offered=len(run.rows), rows=run.rows, received=run.sent, flight=run.truth,
+        fusion=True, offered=len(run.rows) if run.offered is None else run.offered,
+        rows=run.rows, received=run.sent, flight=run.truth,
         wall_s=run.wall_s, cpu_s=run.cpu_s, warmup_s=0.0, peak_rss_mb=_peak_rss_mb(),
         exit_code=0, stats={"sent": len(run.sent), "lockstep": not run.realtime},
         without=run.without, compass_bias_deg=bias)
