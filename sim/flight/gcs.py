@@ -106,8 +106,11 @@ class GroundStation:
         self._chunk_id = msg.id
         self.texts.append(Text(now, msg.severity, msg.text))
 
-    def texts_since(self, t: float) -> list[str]:
-        return [x.text for x in self.texts if x.t >= t]
+    def texts_since(self, t: float,
+                    severity: int = mavlink2.MAV_SEVERITY_WARNING) -> list[str]:
+        """The texts heard since `t` of at least `severity` (by default the warnings and worse
+        that say why something was refused)."""
+        return [x.text for x in self.texts if x.t >= t and x.severity <= severity]
 
     def ack(self, command: int, since: float) -> int | None:
         """The result of the last COMMAND_ACK for `command` since `since` (None: none)."""

@@ -130,7 +130,8 @@ class MissionRunner:
             self._poll(ardupilotmega.MAVLINK_MSG_ID_EKF_STATUS_REPORT, now)
             ok = gcs.has_position()
         else:
-            ok = any("using external nav" in t for t in gcs.texts_since(0.0))
+            texts = gcs.texts_since(0.0, mavlink2.MAV_SEVERITY_DEBUG)
+            ok = any("using external nav" in t for t in texts)
         return (Outcome.DONE, "") if ok else (Outcome.RUNNING, f"no {what.value} yet")
 
     def _mode(self, r: StepResult, now: float) -> tuple[Outcome, str]:
