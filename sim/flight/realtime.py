@@ -177,11 +177,11 @@ def fly_realtime(mission: Mission, config: Config, seed: int, size: tuple[int, i
                                             timing), daemon=True)
     process.start()
     busy = [multiprocessing.Process(target=_busy, daemon=True) for _ in range(load)]
+    for p in busy:
+        p.start()
     try:
         service_config = replace(config, mavlink={"link": conn.recv()})
         recorder = Recorder()
-        for p in busy:
-            p.start()
         conn.send("power on")
         boot = conn.recv()
         source = RenderedCamera(world, truth, timing.fps, boot)
@@ -195,6 +195,7 @@ def fly_realtime(mission: Mission, config: Config, seed: int, size: tuple[int, i
     finally:
         for p in busy:
             p.terminate()
+            p.join()
         process.join(5.0)
         if process.is_alive():
             process.terminate()
