@@ -19,7 +19,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 
-from daemon.config import Config, replace
+from daemon.config import Config, OriginConfig, replace
 from daemon.run_command import tracker_factory
 from sim.flight.autopilot_side import AutopilotSide, DelayLine
 from sim.flight.companion import LockstepCompanion, Tracked
@@ -30,10 +30,19 @@ from sim.replay.autopilot_process import VisionMessage
 from sim.replay.flight import drone_config
 from sim.replay.lockstep import lockstep_config
 
+# ArduPilot SITL's default site, CMAC (Tools/autotest/locations.txt): latitude, longitude, m
+SITE = (-35.363261, 149.165230, 584.0)
+
 
 def flight_config(config: Config, world: FlightWorld) -> Config:
-    """The service's config for the world's drone: its camera mounting, the fusion on."""
-    return replace(drone_config(config, world.drone()), fusion={"enabled": True})
+    """The service's config for the world's drone: its camera mounting, the fusion on, and the
+    EKF origin at the take-off site (the README's step for a vehicle without GPS) unless the
+    config sets its own."""
+    config = replace(drone_config(config, world.drone()), fusion={"enabled": True})
+    if config.origin != OriginConfig():
+        return config
+    return replace(config, origin={"enabled": True, "latitude_deg": SITE[0],
+                                   "longitude_deg": SITE[1], "altitude_m": SITE[2]})
 
 
 class ClosedLoop:
