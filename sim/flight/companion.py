@@ -10,6 +10,7 @@ codec. Only ODOMETRY is sent (the service's default `mavlink.output`).
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -32,9 +33,8 @@ HOUSEKEEPING_S = 0.05  # the service's housekeeping period (daemon/service.py)
 
 @dataclass(frozen=True)
 class Tracked:
-    """A tracker result waiting for its turn: the estimator takes it at `due`."""
+    """A tracker result waiting for the estimator's turn."""
 
-    due: float
     index: int
     t_source: float
     t_capture: float
@@ -110,15 +110,15 @@ class LockstepCompanion:
                 self.origin.tick(now, target)
             self.texts.flush(now)
 
-    def track(self, index: int, t_source: float, image: np.ndarray, delay_s: float,
-              timer: Callable[[], float]) -> Tracked:
-        """Track a frame captured now; the estimator takes the result `delay_s` later."""
-        t_capture = self.clock()
+    def track(self, index: int, t_source: float, t_capture: float,
+              image: np.ndarray) -> Tracked:
+        """Track a frame captured at `t_capture` (our clock). Only the caller's thread uses the
+        tracker, so it may be a worker."""
         if self.tracker is None:
             self.tracker = self.make_tracker(Frame(index, t_source, t_capture, image))
-        start = timer()
+        start = time.perf_counter()
         result = self.tracker.process(image, t_source)
-        return Tracked(t_capture + delay_s, index, t_source, t_capture, result, timer() - start)
+        return Tracked(index, t_source, t_capture, result, time.perf_counter() - start)
 
     def publish(self, tracked: Tracked) -> None:
         """The estimator's turn for a tracked frame; its estimate goes out as ODOMETRY."""

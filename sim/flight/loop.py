@@ -18,6 +18,9 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+
+import numpy as np
 
 from daemon.config import Config, OriginConfig, replace
 from daemon.run_command import tracker_factory
@@ -64,37 +67,46 @@ class ClosedLoop:
             lambda data: self.to_autopilot.put(self.now, data),
             lambda: self.now + tm.our_clock_s)
         self.to_companion = DelayLine(tm.link_s, self.companion.feed)
-        self.pending: deque[Tracked] = deque()
+        self.pending: deque[tuple[float, Future]] = deque()  # (due, the worker's Tracked)
 
     def run(self) -> FlightRun:
-        """Fly until the mission has ended (or its time limit)."""
+        """Fly until the mission has ended (or its time limit). A worker thread renders and
+        tracks each frame while this one flies on: the estimate is due only capture_to_send_s
+        after the capture, and the worker takes the frames in order, so the flight is the same
+        as one thread's (the kernels release the GIL)."""
         tm = self.timing
         frame = 0
         cpu0, wall0 = time.process_time(), time.perf_counter()
         try:
-            while not self.autopilot.done:
-                next_frame = (frame + 1) / tm.fps
-                self.now = min(self.now + tm.step_s, next_frame)
-                for data in self.autopilot.step(self.now):
-                    self.to_companion.put(self.now, data)
-                self.to_autopilot.run(self.now)
-                self.to_companion.run(self.now)
-                self.companion.tick()
-                if self.now >= next_frame - 1e-9:
-                    frame += 1
-                    self._capture(frame)
-                while self.pending and self.pending[0].due <= self.now + tm.our_clock_s + 1e-9:
-                    self.companion.publish(self.pending.popleft())
+            with ThreadPoolExecutor(1, thread_name_prefix="camera") as camera:
+                while not self.autopilot.done:
+                    next_frame = (frame + 1) / tm.fps
+                    self.now = min(self.now + tm.step_s, next_frame)
+                    for data in self.autopilot.step(self.now):
+                        self.to_companion.put(self.now, data)
+                    self.to_autopilot.run(self.now)
+                    self.to_companion.run(self.now)
+                    self.companion.tick()
+                    if self.now >= next_frame - 1e-9:
+                        frame += 1
+                        self._capture(camera, frame)
+                    while self.pending and self.pending[0][0] <= self.now + 1e-9:
+                        self.companion.publish(self.pending.popleft()[1].result())
         finally:
             self.companion.close()
         return self._result(time.process_time() - cpu0, time.perf_counter() - wall0)
 
-    def _capture(self, index: int) -> None:
-        """Render frame `index` where the vehicle is now and track it."""
-        image = self.world.image(index, self.now, self.autopilot.T_ned_body)
-        self.pending.append(self.companion.track(index, self.now, image,
-                                                 self.timing.capture_to_send_s,
-                                                 time.perf_counter))
+    def _capture(self, camera: ThreadPoolExecutor, index: int) -> None:
+        """Frame `index`, where the vehicle is now: rendered and tracked by the worker."""
+        tm = self.timing
+        pose = self.autopilot.T_ned_body.copy()
+        self.pending.append((self.now + tm.capture_to_send_s, camera.submit(
+            self._render_track, index, self.now, self.now + tm.our_clock_s, pose)))
+
+    def _render_track(self, index: int, t: float, t_capture: float,
+                      T_ned_body: np.ndarray) -> Tracked:
+        image = self.world.image(index, t, T_ned_body)
+        return self.companion.track(index, t, t_capture, image)
 
     def _result(self, cpu_s: float, wall_s: float) -> FlightRun:
         ap = self.autopilot
