@@ -18,6 +18,8 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega
 from pymavlink.dialects.v20 import common as mavlink2
 
+from sim.autopilot.records import Severity, StatusText
+
 GCS_ID = (255, mavlink2.MAV_COMP_ID_MISSIONPLANNER)
 VISION = ("ODOMETRY", "VISION_POSITION_ESTIMATE")
 VISION_WINDOW_S = 1.0
@@ -27,15 +29,6 @@ EKF_CONST_POS_MODE = ardupilotmega.EKF_CONST_POS_MODE
 # SET_POSITION_TARGET_LOCAL_NED type_mask: use the position only (velocity, acceleration, yaw
 # and yaw rate ignored), as ArduPilot's GUIDED position targets from scripts
 POSITION_ONLY = 0b110111111000
-
-
-@dataclass(frozen=True)
-class Text:
-    """A STATUSTEXT (chunks joined) and when it arrived."""
-
-    t: float
-    severity: int
-    text: str
 
 
 @dataclass(frozen=True)
@@ -61,7 +54,7 @@ class GroundStation:
         self.custom_mode: int | None = None
         self.system_status: int | None = None
         self.acks: list[tuple[float, int, int]] = []  # (t, command, result)
-        self.texts: list[Text] = []
+        self.texts: list[StatusText] = []  # chunks joined
         self.position: LocalPosition | None = None
         self.ekf_flags: tuple[float, int] | None = None
         self.vision_arrivals: deque[float] = deque()
@@ -101,10 +94,10 @@ class GroundStation:
         """MAVLink 2 chunks of one text share a non-zero id."""
         if msg.id and msg.id == self._chunk_id and msg.chunk_seq > 0 and self.texts:
             last = self.texts[-1]
-            self.texts[-1] = Text(last.t, last.severity, last.text + msg.text)
+            self.texts[-1] = StatusText(last.t, last.severity, last.text + msg.text)
             return
         self._chunk_id = msg.id
-        self.texts.append(Text(now, msg.severity, msg.text))
+        self.texts.append(StatusText(now, Severity(msg.severity), msg.text))
 
     def texts_since(self, t: float,
                     severity: int = mavlink2.MAV_SEVERITY_WARNING) -> list[str]:

@@ -22,6 +22,7 @@ from collections.abc import Callable
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega
 
+from daemon.camera import Pacer
 from daemon.config import Config, replace
 from daemon.frames import Frame
 from daemon.run_command import tracker_factory
@@ -70,23 +71,19 @@ class RenderedCamera:
     def __init__(self, world: FlightWorld, truth: TruthShare, fps: float, boot: float):
         self.world, self.truth, self.period, self.boot = world, truth, 1.0 / fps, boot
         self.camera = world.camera
-        self._next = 0.0
-        self._index = self.offered = 0
+        self.pacer = Pacer()
+        self.offered = 0
 
     def open(self) -> None:
-        self._next = time.monotonic()
+        """Nothing to open: the world is in memory."""
 
     def read(self) -> tuple[float, float, np.ndarray]:
-        delay = self._next - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
-        t_capture = time.monotonic()
-        self._next = max(self._next + self.period, t_capture - self.period)
+        """The next frame: exposed (the pose read) when it is due, then rendered."""
+        self.offered += 1
+        t_capture = self.pacer.wait(self.offered * self.period)
         _, T_ned_body = self.truth.read()
-        self._index += 1
-        self.offered = self._index
         t = t_capture - self.boot
-        return t, t_capture, self.world.image(self._index, t, T_ned_body)
+        return t, t_capture, self.world.image(self.offered, t, T_ned_body)
 
     def close(self) -> None:
         """Nothing to release."""
