@@ -14,7 +14,6 @@ import logging
 import struct
 from abc import ABC, abstractmethod
 
-import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from sim.autopilot.dynamics import FlyingVehicle
@@ -31,8 +30,6 @@ MAV_CMD_DO_SET_GLOBAL_ORIGIN = 611  # common.xml (2025), not yet in pymavlink's 
 IMU_DT = 0.02  # the stand-ins' prediction step: smooth flights need no more (EKF3 runs faster)
 MAX_CATCH_UP_S = 0.1
 STATUSTEXT_LEN = 50
-FAST_LOOP_STEPS = 8  # 400 Hz: ArduCopter's main loop rate (SCHED_LOOP_RATE) per IMU_DT
-MOTORS_STOPPED = np.zeros(4)
 
 
 class AutopilotModel(ABC):
@@ -47,7 +44,8 @@ class AutopilotModel(ABC):
         self.mav = self.dialect.MAVLink(None, srcSystem=options.system_id, srcComponent=1)
         self.record = AutopilotRecord()
         self.outbox: list = []
-        stored = options.stored_params()
+        hardware = {} if options.dynamics is None else options.dynamics.hardware_params()
+        stored = {**hardware, **options.stored_params()}
         self.params = ParamStore(self.param_specs(stored), stored)
         self.sensing = Sensing(options.imu_noise, options.seed)
         self.origin: tuple[int, int, int] | None = None
@@ -205,16 +203,15 @@ class AutopilotModel(ABC):
     def _predict(self, t: float, dt: float) -> None:
         self._last_step = t
         if self.flies:
-            self.fly(dt)
-            self.vehicle.mark()
-        reading = self.sensing.read(self.vehicle, self.uptime(t), dt)
+            reading = self.fly(dt)
+        else:
+            reading = self.sensing.read(self.vehicle, self.uptime(t), dt)
         self.estimator_step(t, reading, dt)
 
-    def fly(self, dt: float) -> None:
-        """Run the firmware's fast loop (attitude control, motors, physics) for dt; a firmware
-        without flight controllers leaves the motors stopped."""
-        for _ in range(FAST_LOOP_STEPS):
-            self.vehicle.advance(dt / FAST_LOOP_STEPS, MOTORS_STOPPED)
+    def fly(self, dt: float) -> Reading:
+        """Run the firmware's fast loop (sensors, attitude control, motors, physics) for dt and
+        read its sensors for the estimator (firmwares whose vehicle can fly)."""
+        raise NotImplementedError(f"{type(self).__name__} has no flight controllers")
 
     def _send_stream(self, name: str, now: float) -> None:
         try:

@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from sim.autopilot.airframe import Airframe
 from sim.autopilot.multicopter import Multicopter
+from sim.autopilot.rangefinder import RangefinderSpec
 from sim.autopilot.wind import Wind, WindField
 
 HISTORY_S = 2.0  # how far back state(t) can look (a late vision message's capture time)
@@ -32,7 +33,8 @@ class Dynamics:
     """A multicopter standing on flat ground: its body origin above (north_m, east_m), heading
     yaw_deg, the ground at NED z = ground_down_m (the body origin is the airframe's gear height
     above it). `terrain` optionally replaces the flat ground for the rangefinder (a synthetic
-    world's ray caster); the physics always stands on the flat ground."""
+    world's ray caster); the physics always stands on the flat ground. `rangefinder` None:
+    the vehicle has none (no DISTANCE_SENSOR); `seed` draws its sensors' errors and noise."""
 
     north_m: float = 0.0
     east_m: float = 0.0
@@ -41,6 +43,12 @@ class Dynamics:
     airframe: Airframe = field(default_factory=Airframe)
     wind: Wind | None = None
     terrain: RangeFunction | None = None
+    rangefinder: RangefinderSpec | None = field(default_factory=RangefinderSpec)
+    seed: int = 0
+
+    def hardware_params(self) -> dict[str, float]:
+        """Parameters the builder set for this vehicle's hardware (its rangefinder)."""
+        return {} if self.rangefinder is None else self.rangefinder.ardupilot_params()
 
 
 @dataclass(frozen=True)

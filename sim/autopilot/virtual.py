@@ -32,9 +32,12 @@ class VirtualLink:
         self._in_parser = ardupilotmega.MAVLink(None)
         self.heard: list[tuple[float, object]] = []
 
-    def send(self, msg: object) -> None:
-        data = msg.pack(self.mav)
-        self.mav.seq = (self.mav.seq + 1) % 256
+    def send(self, msg: object, sender: mavlink2.MAVLink | None = None) -> None:
+        """Deliver `msg` from the companion, or from `sender` (e.g. a ground station's
+        MAVLink with its own system id)."""
+        mav = sender or self.mav
+        data = msg.pack(mav)
+        mav.seq = (mav.seq + 1) % 256
         for parsed in self._in_parser.parse_buffer(data) or []:
             self.model.receive(parsed, self.now)
         self._collect()
