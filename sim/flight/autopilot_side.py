@@ -42,6 +42,10 @@ class DelayLine:
     def put(self, now: float, data: bytes) -> None:
         self._queue.append((now + self.delay_s, data))
 
+    def next_due(self) -> float:
+        """When the next bytes arrive (inf: none on the way)."""
+        return self._queue[0][0] if self._queue else np.inf
+
     def run(self, now: float) -> None:
         while self._queue and self._queue[0][0] <= now + 1e-12:
             self.deliver(self._queue.popleft()[1])

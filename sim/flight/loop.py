@@ -81,7 +81,7 @@ class ClosedLoop:
             with ThreadPoolExecutor(1, thread_name_prefix="camera") as camera:
                 while not self.autopilot.done:
                     next_frame = (frame + 1) / tm.fps
-                    self.now = min(self.now + tm.step_s, next_frame)
+                    self.now = min(self.now + tm.step_s, next_frame, self._next_event())
                     for data in self.autopilot.step(self.now):
                         self.to_companion.put(self.now, data)
                     self.to_autopilot.run(self.now)
@@ -95,6 +95,12 @@ class ClosedLoop:
         finally:
             self.companion.close()
         return self._result(time.process_time() - cpu0, time.perf_counter() - wall0)
+
+    def _next_event(self) -> float:
+        """The next estimate due or message arriving between us and the autopilot: the loop
+        steps to it, so latencies are exactly the timing's."""
+        due = self.pending[0][0] if self.pending else np.inf
+        return min(due, self.to_autopilot.next_due(), self.to_companion.next_due())
 
     def _capture(self, camera: ThreadPoolExecutor, index: int) -> None:
         """Frame `index`, where the vehicle is now: rendered and tracked by the worker."""

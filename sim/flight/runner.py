@@ -103,8 +103,8 @@ class MissionRunner:
     def _mode_taken_away(self, current: StepResult, now: float) -> bool:
         """The autopilot left the mode we set by itself (a failsafe): the mission ends."""
         mode = self.gcs.custom_mode
-        if self._expected_mode is None or mode is None or mode == self._expected_mode or \
-                current.step.action is Action.MODE:
+        if self._expected_mode is None or mode is None or \
+                mode in (self._expected_mode, self._progress.extra.get("requested")):
             return False
         name = next((n for n, v in COPTER_MODES.items() if v == mode), str(mode))
         texts = "; ".join(self.gcs.texts_since(current.started - 1.0)[-3:])
@@ -137,8 +137,7 @@ class MissionRunner:
     def _mode(self, r: StepResult, now: float) -> tuple[Outcome, str]:
         number = COPTER_MODES[r.step.value]
         if self._progress.sent == -np.inf:
-            self._progress.sent = now
-            self.gcs.set_mode(number)
+            self._request_mode(number, now)
         result = self.gcs.ack(mavlink2.MAV_CMD_DO_SET_MODE, r.started)
         if result is not None and result != mavlink2.MAV_RESULT_ACCEPTED:
             return Outcome.FAILED, self._refusal("mode change refused", r)
@@ -146,6 +145,12 @@ class MissionRunner:
             self._expected_mode = number
             return Outcome.DONE, ""
         return Outcome.RUNNING, "no answer"
+
+    def _request_mode(self, number: int, now: float) -> None:
+        """DO_SET_MODE; until the autopilot confirms, either mode is ours."""
+        self._progress.sent = now
+        self._progress.extra["requested"] = number
+        self.gcs.set_mode(number)
 
     def _refusal(self, what: str, r: StepResult) -> str:
         texts = self.gcs.texts_since(r.started)
@@ -204,13 +209,14 @@ class MissionRunner:
         return Outcome.RUNNING, off
 
     def _land(self, r: StepResult, now: float) -> tuple[Outcome, str]:
+        land = COPTER_MODES["LAND"]
         if self._progress.sent == -np.inf:
-            self._progress.sent = now
-            self._expected_mode = COPTER_MODES["LAND"]
-            self.gcs.set_mode(COPTER_MODES["LAND"])
+            self._request_mode(land, now)
         result = self.gcs.ack(mavlink2.MAV_CMD_DO_SET_MODE, r.started)
         if result is not None and result != mavlink2.MAV_RESULT_ACCEPTED:
             return Outcome.FAILED, self._refusal("LAND refused", r)
+        if self.gcs.custom_mode == land:
+            self._expected_mode = land
         if result is not None and not self.gcs.armed:
             return Outcome.DONE, ""
         return Outcome.RUNNING, "still armed"

@@ -84,6 +84,7 @@ class FlightScores:
 
 def truth_at(run: FlightRun, t: float) -> np.ndarray:
     """The vehicle's true position (NED) at time t."""
+    t = min(max(t, float(run.truth.t[0])), float(run.truth.t[-1]))
     at, _ = interpolate(run.truth, np.array([t]), max_gap=np.inf)
     return at.positions[0]
 
