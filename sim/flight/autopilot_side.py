@@ -56,14 +56,15 @@ class AutopilotSide:
     (seconds since it booted at `now`)."""
 
     def __init__(self, mission: Mission, world: FlightWorld, seed: int, timing: Timing,
-                 without: tuple[str, ...] = (), now: float = 0.0):
+                 without: tuple[str, ...] = (), now: float = 0.0,
+                 on_step: Callable[[str], None] | None = None):
         self.now = now
         options = configured_options(by_parameter=True, seed=seed,
                                      dynamics=Dynamics(terrain=world.range))
         self.model = make_model(options, None, now)
         self.hidden = {name for kind in without for name in SENSOR_STREAMS[kind]}
         self.gcs = GroundStation(lambda data: self._from_gcs.put(self.now, data))
-        self.runner = MissionRunner(mission, self.gcs)
+        self.runner = MissionRunner(mission, self.gcs, on_step)
         self._from_gcs = DelayLine(timing.gcs_link_s, self._receiver())
         self._to_gcs = DelayLine(timing.gcs_link_s, lambda data: self.gcs.feed(data, self.now))
         self._from_companion = self._receiver()

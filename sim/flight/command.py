@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 from daemon.config import Config, load_config
@@ -60,6 +63,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="planned and flown path, the autopilot's estimate and ours")
     parser.add_argument("--json", action="store_true",
                         help="one JSON object (keys: sim/flight/report.py KEYS)")
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress lines on stderr")
     parser.add_argument("--log-level", default="warning",
                         choices=("debug", "info", "warning", "error"),
                         help="log level of the service's parts on stderr (default warning)")
@@ -75,7 +80,18 @@ def fly(mission: Mission, config: Config, seed: int, args: argparse.Namespace) -
         return fly_realtime(mission, config, seed, size, without, args.load)
     timing = Timing() if args.latency_ms is None else Timing(
         capture_to_send_s=args.latency_ms / 1e3)
-    return ClosedLoop(mission, config, seed, size, without, timing).run()
+    progress = None if args.quiet else _progress(f"fly {mission.name} seed {seed}")
+    return ClosedLoop(mission, config, seed, size, without, timing, on_step=progress).run()
+
+
+def _progress(prefix: str) -> Callable[[str], None]:
+    """A line on stderr as each mission step starts, with the wall time so far."""
+    start = time.monotonic()
+
+    def show(line: str) -> None:
+        print(f"{prefix}: {line}  ({time.monotonic() - start:.0f} s)", file=sys.stderr,
+              flush=True)
+    return show
 
 
 def run(args: argparse.Namespace) -> int:

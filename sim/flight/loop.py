@@ -53,13 +53,15 @@ class ClosedLoop:
 
     def __init__(self, mission: Mission, config: Config, seed: int = 0,
                  size: tuple[int, int] | None = None, without: tuple[str, ...] = (),
-                 timing: Timing | None = None, make_tracker: Callable | None = None):
+                 timing: Timing | None = None, make_tracker: Callable | None = None,
+                 on_step: Callable[[str], None] | None = None):
         self.mission, self.seed, self.without = mission, seed, without
         self.timing = tm = timing or Timing()
         self.world = FlightWorld.of_preset(mission.world, seed, size)
         self.config = lockstep_config(flight_config(config, self.world))
         self.now = 0.0
-        self.autopilot = AutopilotSide(mission, self.world, seed, tm, without, self.now)
+        self.autopilot = AutopilotSide(mission, self.world, seed, tm, without, self.now,
+                                       on_step)
         self.to_autopilot = DelayLine(tm.link_s,
                                       lambda data: self.autopilot.from_companion(data, self.now))
         self.companion = LockstepCompanion(

@@ -6,7 +6,8 @@ changes mode by itself (a failsafe). What happened is kept per step for the repo
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 from enum import Enum
 
 import numpy as np
@@ -49,20 +50,23 @@ class StepResult:
 
 @dataclass
 class _Progress:
-    """Per-step working state."""
+    """Per-step working state: when its command went out, when it last polled, since when its
+    texts count, the mode it asked for."""
 
     sent: float = -np.inf
     polled: float = -np.inf
     texts_from: float = 0.0
-    extra: dict = field(default_factory=dict)
+    requested: int | None = None
 
 
 class MissionRunner:
     """`tick(now)` as often as the link is served; `done` when the mission has ended."""
 
-    def __init__(self, mission: Mission, gcs: GroundStation):
+    def __init__(self, mission: Mission, gcs: GroundStation,
+                 on_step: Callable[[str], None] | None = None):
         self.mission = mission
         self.gcs = gcs
+        self.on_step = on_step  # told a line as each step starts (progress)
         self.results: list[StepResult] = []
         self.home: np.ndarray | None = None
         self.height_m = 0.0  # the height goto points without one fly at (above home)
@@ -89,6 +93,9 @@ class MissionRunner:
             step = self.mission.steps[len(self.results)]
             self.results.append(StepResult(step, now, home=self.home))
             self._progress = _Progress(texts_from=now)
+            if self.on_step is not None:
+                self.on_step(f"{now:6.1f} s  step {step.index}/{len(self.mission.steps)} "
+                             f"{step.describe()}")
         current = self.results[-1]
         if self._mode_taken_away(current, now):
             return
@@ -104,7 +111,7 @@ class MissionRunner:
         """The autopilot left the mode we set by itself (a failsafe): the mission ends."""
         mode = self.gcs.custom_mode
         if self._expected_mode is None or mode is None or \
-                mode in (self._expected_mode, self._progress.extra.get("requested")):
+                mode in (self._expected_mode, self._progress.requested):
             return False
         name = next((n for n, v in COPTER_MODES.items() if v == mode), str(mode))
         texts = "; ".join(self.gcs.texts_since(current.started - 1.0)[-3:])
@@ -149,7 +156,7 @@ class MissionRunner:
     def _request_mode(self, number: int, now: float) -> None:
         """DO_SET_MODE; until the autopilot confirms, either mode is ours."""
         self._progress.sent = now
-        self._progress.extra["requested"] = number
+        self._progress.requested = number
         self.gcs.set_mode(number)
 
     def _refusal(self, what: str, r: StepResult) -> str:

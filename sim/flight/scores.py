@@ -10,6 +10,7 @@ position then (what a pilot means by "2 m north of where it took off").
 
 from __future__ import annotations
 
+import resource
 from dataclasses import dataclass
 
 import numpy as np
@@ -171,8 +172,6 @@ def replay_run(run: FlightRun) -> ReplayRun:
 
 
 def _peak_rss_mb() -> float:
-    import resource
-
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
