@@ -13,7 +13,7 @@ from sim.flight.flight_run import Timing
 from sim.flight.mission import parse_mission
 from sim.flight.report import verdict
 from sim.flight.runner import Outcome
-from sim.flight.scores import FlightScores
+from sim.flight.scores import FlightScores, HeightErrors
 from sim.flight.world import FlightWorld
 
 STEP_S = 0.0025
@@ -74,7 +74,8 @@ def fly(world: FlightWorld, steps: list[dict], companion: PerfectCompanion | Non
 def _scores(side: AutopilotSide) -> FlightScores:
     failed = side.runner.failed
     return FlightScores(sum(r.outcome is Outcome.DONE for r in side.runner.results), failed,
-                        False, None, None, [], [], [], [], [], None, 40.0, {})
+                        False, None, None, [], [], HeightErrors(None, None), [], [], [], None,
+                        40.0, {})
 
 
 def test_without_vision_the_wait_times_out_and_says_so(world):

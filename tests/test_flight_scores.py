@@ -7,24 +7,33 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim.autopilot.records import AutopilotRecord, Event, EventKind, Severity, StatusText
+from sim.autopilot.records import (
+    AutopilotRecord,
+    EstimateSample,
+    Event,
+    EventKind,
+    Severity,
+    StatusText,
+)
 from sim.flight.flight_run import FlightRun, Timing
 from sim.flight.mission import parse_mission
 from sim.flight.report import verdict
 from sim.flight.runner import Outcome, StepResult
 from sim.flight.scores import (
     FlightScores,
+    HeightErrors,
     HoldScore,
     corner_scores,
     failsafes,
     frame_offset,
+    height_errors,
     height_steps,
     hold_scores,
 )
 from sim.trajectory import Trajectory
 
-MISSION = parse_mission({"steps": [{"arm": True}, {"mode": "LOITER"}, {"hold": 10},
-                                   {"goto": [2, 0]}]})
+MISSION = parse_mission({"steps": [{"arm": True}, {"takeoff": 3}, {"mode": "LOITER"},
+                                   {"hold": 10}, {"goto": [2, 0]}]})
 SHIFT = np.array([5.0, -1.0, -0.15])  # the world's position of the autopilot's origin
 
 
@@ -42,9 +51,10 @@ def _truth() -> Trajectory:
 
 
 def _run(record: AutopilotRecord | None = None) -> FlightRun:
-    arm, mode, hold, goto = MISSION.steps
+    arm, takeoff, mode, hold, goto = MISSION.steps
     home = np.array([0.0, 0.0, 0.0])
     results = [StepResult(arm, 0.5, 0.6, Outcome.DONE, home=home),
+               StepResult(takeoff, 0.6, 2.5, Outcome.DONE),
                StepResult(mode, 2.9, 3.0, Outcome.DONE),
                StepResult(hold, 3.0, 13.0, Outcome.DONE),
                StepResult(goto, 13.0, 22.0, Outcome.DONE, target=np.array([2.0, 0.0, -3.0]),
@@ -65,7 +75,18 @@ def test_corner_error_is_measured_in_the_world_from_the_arming_point():
     assert np.allclose(frame_offset(run), SHIFT)
     (corner,) = corner_scores(run)
     assert corner.target == (2.0, 0.0, 3.0)
-    assert corner.error_m == pytest.approx(0.1, abs=1e-6)  # flew 2.1 m north for a 2 m target
+    assert corner.error_xy_m == pytest.approx(0.1, abs=1e-6)  # flew 2.1 m north for 2 m
+    assert corner.error_z_m == pytest.approx(0.0, abs=1e-6)
+
+
+def test_height_errors_compare_heights_from_the_arming_point_while_airborne():
+    # the autopilot thinks it is 0.5 m lower than it is from 8 s on; ground time is not counted
+    estimates = [EstimateSample(t, np.array([0.0, 0.0, -0.4 - 3.0 * np.clip(t - 1, 0, 1)
+                                             + (0.5 if t >= 8 else 0.0)]), np.zeros(3), True)
+                 for t in np.arange(0.0, 25.0, 0.1)]
+    errors = height_errors(_run(AutopilotRecord(estimates=estimates)))
+    assert errors.autopilot_m == pytest.approx(0.55, abs=1e-6)  # and the hold's 5 cm climb
+    assert errors.ours_m is None  # no vision message in this record
 
 
 def test_height_steps_and_failsafes_come_from_the_autopilots_record():
@@ -82,7 +103,8 @@ def test_height_steps_and_failsafes_come_from_the_autopilots_record():
 
 def _scores(**changes) -> FlightScores:
     base = {"steps_done": 4, "failed": None, "armed": True, "takeoff_s": 1.0, "extnav_s": 0.5,
-            "holds": [HoldScore("LOITER", 30.0, 0.12, 0.03)], "corners": [], "height_steps": [],
+            "holds": [HoldScore("LOITER", 30.0, 0.12, 0.03)], "corners": [],
+            "heights": HeightErrors(0.05, 0.04), "height_steps": [],
             "failsafes": [], "latency_ms": [38.0] * 10, "suggested_delay_ms": 38.0,
             "viso_delay_ms": 40.0, "expert": {}}
     return FlightScores(**{**base, **changes})
@@ -103,3 +125,11 @@ def test_verdict_says_what_to_change():
     assert "used our estimate only 7.0 s after take-off" in late
     assert verdict(_scores(failsafes=["4.0 s EKF variance"]))[0].startswith(
         "NOT READY: failsafe: 4.0 s EKF variance")
+
+
+def test_verdict_says_whose_height_wandered():
+    line, loiter, _ = verdict(_scores(holds=[HoldScore("LOITER", 30.0, 0.1, 0.6)],
+                                      heights=HeightErrors(0.62, 0.08)))
+    assert loiter and line.startswith("READY for LOITER: drift 0.10 m; its height wandered "
+                                      "0.60 m: the autopilot's own height was off by 0.62 m in "
+                                      "flight, ours by 0.08 m")

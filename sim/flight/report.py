@@ -19,6 +19,7 @@ from sim.replay.report import format_report
 HOLD_LIMIT_M = 0.3
 CORNER_LIMIT_M = 0.3
 HEIGHT_STEP_LIMIT_M = 0.1
+HEIGHT_HOLD_LIMIT_M = 0.3  # a hold's or a corner's height off by more is said in the verdict
 EXTNAV_LIMIT_S = 5.0
 DELAY_TOLERANCE_MS = 10.0  # a VISO_DELAY_MS this close to the measured latency is right
 # what a user changes when a step fails with the autopilot's words (first match)
@@ -52,8 +53,15 @@ KEYS = {
     "extnav_after_takeoff_s": "extnav_s - takeoff_s (negative: before lift-off)",
     "holds": "each hold: mode, seconds, drift_xy_m and drift_z_m (truth)",
     "hold_drift_m": "the largest horizontal drift over a LOITER hold (truth), m",
-    "corners": "each goto: target (north, east, up from home) and error_m (truth)",
-    "corner_error_max_m": "the largest corner error (truth), m (None: a corner not reached)",
+    "corners": "each goto: target (north, east, up from home), error_xy_m and error_z_m "
+               "(truth)",
+    "corner_error_max_m": "the largest horizontal corner error (truth), m (None: a corner not "
+                          "reached)",
+    "corner_height_error_max_m": "the largest vertical corner error (truth), m",
+    "autopilot_height_error_m": "airborne, the largest error of the autopilot's own height "
+                                "from the arming point (truth), m",
+    "our_height_error_m": "airborne, the largest error of the height we sent, from the arming "
+                          "point (truth), m",
     "height_steps": "the autopilot's height resets: t, step_m, why",
     "height_step_max_m": "the largest height reset, m",
     "failsafes": "the autopilot's failsafe messages",
@@ -72,9 +80,27 @@ def loiter_drift(s: FlightScores) -> float | None:
     return max(drifts) if drifts else None
 
 
-def corner_max(s: FlightScores) -> float | None:
-    errors = [c.error_m for c in s.corners]
+def corner_max(s: FlightScores, key: str = "error_xy_m") -> float | None:
+    """The largest corner error (horizontal by default); None when a corner was not reached."""
+    errors = [getattr(c, key) for c in s.corners]
     return None if not errors or None in errors else max(errors)
+
+
+def height_drift(s: FlightScores) -> float:
+    """The largest height error of a hold or a corner, in truth."""
+    return max([h.drift_z_m for h in s.holds] + [c.error_z_m or 0.0 for c in s.corners],
+               default=0.0)
+
+
+def _height_note(s: FlightScores) -> str:
+    """Said when the height wandered: whose height estimate was off (the autopilot flies its
+    own, from the barometer with EK3_SRC1_POSZ 1)."""
+    drift = height_drift(s)
+    if drift <= HEIGHT_HOLD_LIMIT_M:
+        return ""
+    ap, ours = s.heights.autopilot_m, s.heights.ours_m
+    return (f"; its height wandered {drift:.2f} m: the autopilot's own height was off by "
+            f"{_num(ap, '.2f')} m in flight, ours by {_num(ours, '.2f')} m")
 
 
 def _advice(detail: str) -> str:
@@ -110,10 +136,11 @@ def verdict(s: FlightScores) -> tuple[str, bool, bool]:
     loiter = not problems and drift is not None and drift <= HOLD_LIMIT_M
     if not problems and drift is not None and not loiter:
         problems.append(f"LOITER drifted {drift:.2f} m (limit {HOLD_LIMIT_M} m)")
+    notes = _height_note(s) + _delay_note(s)
     if problems:
-        return "NOT READY: " + "; ".join(problems) + _delay_note(s), False, False
+        return "NOT READY: " + "; ".join(problems) + notes, False, False
     if drift is None:
-        return "NOT JUDGED: the mission has no LOITER hold" + _delay_note(s), False, False
+        return "NOT JUDGED: the mission has no LOITER hold" + notes, False, False
     guided = corners is not None and corners <= CORNER_LIMIT_M
     if not guided and s.corners:
         text = (f"READY for LOITER (drift {drift:.2f} m), not for GUIDED: a corner "
@@ -123,7 +150,7 @@ def verdict(s: FlightScores) -> tuple[str, bool, bool]:
                 f"{corners:.2f} m")
     else:
         text = f"READY for LOITER: drift {drift:.2f} m"
-    return text + _delay_note(s), True, guided and bool(s.corners)
+    return text + notes, True, guided and bool(s.corners)
 
 
 def flight_report(run: object, s: FlightScores) -> dict:
@@ -142,6 +169,8 @@ def flight_report(run: object, s: FlightScores) -> dict:
         "extnav_after_takeoff_s": s.extnav_after_takeoff_s,
         "holds": [asdict(h) for h in s.holds], "hold_drift_m": loiter_drift(s),
         "corners": [asdict(c) for c in s.corners], "corner_error_max_m": corner_max(s),
+        "corner_height_error_max_m": corner_max(s, "error_z_m"),
+        "autopilot_height_error_m": s.heights.autopilot_m, "our_height_error_m": s.heights.ours_m,
         "height_steps": [asdict(h) for h in s.height_steps],
         "height_step_max_m": max((h.step_m for h in s.height_steps), default=0.0),
         "failsafes": s.failsafes,
@@ -175,10 +204,16 @@ def format_flight(r: dict, total_steps: int) -> str:
         lines.append(f"hold       {h['mode']} {h['seconds']:.0f} s: drift {h['drift_xy_m']:.2f} m "
                      f"horizontal, {h['drift_z_m']:.2f} m vertical (truth)")
     if r["corners"]:
-        errors = " ".join(_num(c["error_m"], ".2f") for c in r["corners"])
-        lines.append(f"corners    off by {errors} m (truth, from the arming point)")
+        xy = " ".join(_num(c["error_xy_m"], ".2f") for c in r["corners"])
+        z = " ".join(_num(c["error_z_m"], ".2f") for c in r["corners"])
+        lines.append(f"corners    off by {xy} m horizontally, {z} m vertically (truth, from the "
+                     "arming point)")
+    lines.append(f"height     in flight the autopilot's own height was off by up to "
+                 f"{_num(r['autopilot_height_error_m'], '.2f')} m, ours by "
+                 f"{_num(r['our_height_error_m'], '.2f')} m (truth)")
     steps = r["height_steps"]
-    lines.append(f"height     {len(steps)} reset(s), largest {r['height_step_max_m']:.2f} m"
+    lines.append(f"resets     {len(steps)} of the autopilot's height, largest "
+                 f"{r['height_step_max_m']:.2f} m"
                  + "".join(f"; {h['step_m']:.2f} m at {h['t']:.1f} s ({h['why']})"
                            for h in steps[:3]))
     lines.append("failsafes  " + ("; ".join(r["failsafes"]) if r["failsafes"] else "none"))

@@ -41,11 +41,22 @@ class HoldScore:
 
 @dataclass(frozen=True)
 class CornerScore:
-    """A goto in truth: its target (north, east, up from home) and the distance from it after
-    the settle time (None: never arrived by the autopilot's estimate), metres."""
+    """A goto in truth: its target (north, east, up from home) and the horizontal and vertical
+    distance from it after the settle time (None: never arrived by the autopilot's estimate),
+    metres."""
 
     target: tuple[float, float, float]
-    error_m: float | None
+    error_xy_m: float | None
+    error_z_m: float | None
+
+
+@dataclass(frozen=True)
+class HeightErrors:
+    """While airborne (take-off to landing), the largest error in truth of the height the
+    autopilot estimated itself and of ours, both from the arming point, metres."""
+
+    autopilot_m: float | None
+    ours_m: float | None
 
 
 @dataclass(frozen=True)
@@ -68,6 +79,7 @@ class FlightScores:
     extnav_s: float | None
     holds: list[HoldScore]
     corners: list[CornerScore]
+    heights: HeightErrors
     height_steps: list[HeightStep]
     failsafes: list[str]
     latency_ms: list[float]
@@ -135,10 +147,47 @@ def corner_scores(run: FlightRun) -> list[CornerScore]:
             continue
         north, east, down = r.target - arm.home
         target = (float(north), float(east), float(-down))
-        error = (float(np.linalg.norm(truth_at(run, r.ended) - (r.target + offset)))
-                 if r.outcome is Outcome.DONE else None)
-        out.append(CornerScore(target, error))
+        if r.outcome is not Outcome.DONE:
+            out.append(CornerScore(target, None, None))
+            continue
+        error = truth_at(run, r.ended) - (r.target + offset)
+        out.append(CornerScore(target, float(np.linalg.norm(error[:2])), float(abs(error[2]))))
     return out
+
+
+def _airborne(run: FlightRun) -> tuple[float, float] | None:
+    """From the take-off command to the landing command (or the end)."""
+    start = next((r.started for r in run.steps if r.step.action is Action.TAKEOFF), None)
+    end = next((r.started for r in run.steps if r.step.action is Action.LAND),
+               float(run.truth.t[-1]) if len(run.truth) else None)
+    return None if start is None or end is None or end <= start else (start, end)
+
+
+def _height_error(run: FlightRun, t: np.ndarray, down: np.ndarray, t_arm: float) -> float | None:
+    """Largest |estimated - true| height from the arming point over the samples (t, NED z)."""
+    window = _airborne(run)
+    if window is None or len(t) < 2:
+        return None
+    inside = (t >= window[0]) & (t <= window[1])
+    if not inside.any():
+        return None
+    at_arm = float(np.interp(t_arm, t, down))
+    truth_arm = truth_at(run, t_arm)[2]
+    true_down = np.array([truth_at(run, x)[2] for x in t[inside]])
+    return float(np.max(np.abs((down[inside] - at_arm) - (true_down - truth_arm))))
+
+
+def height_errors(run: FlightRun) -> HeightErrors:
+    """The autopilot's own height and ours against the truth while airborne."""
+    arm = _arming(run)
+    if arm is None:
+        return HeightErrors(None, None)
+    ap = run.record.estimates
+    ours_t = np.array([m.fields["time_usec"] / 1e6 for m in run.sent]) - run.timing.our_clock_s
+    return HeightErrors(
+        _height_error(run, np.array([e.t for e in ap]),
+                      np.array([e.position[2] for e in ap]), arm.ended),
+        _height_error(run, ours_t, np.array([m.fields["z"] for m in run.sent]), arm.ended))
 
 
 def height_steps(run: FlightRun) -> list[HeightStep]:
@@ -190,6 +239,7 @@ def score(run: FlightRun) -> FlightScores:
         armed=any(r.step.action is Action.ARM and r.outcome is Outcome.DONE
                   for r in run.steps),
         takeoff_s=takeoff, extnav_s=None if extnav is None else extnav.t,
-        holds=hold_scores(run), corners=corner_scores(run), height_steps=height_steps(run),
+        holds=hold_scores(run), corners=corner_scores(run), heights=height_errors(run),
+        height_steps=height_steps(run),
         failsafes=failsafes(run), latency_ms=latency, suggested_delay_ms=suggested,
         viso_delay_ms=run.viso_delay_ms, expert=expert)
