@@ -17,7 +17,7 @@ from sim.autopilot.records import (
 )
 from sim.flight.flight_run import FlightRun, Timing
 from sim.flight.mission import parse_mission
-from sim.flight.report import verdict
+from sim.flight.report import flight_report, verdict
 from sim.flight.runner import Outcome, StepResult
 from sim.flight.scores import (
     FlightScores,
@@ -29,7 +29,9 @@ from sim.flight.scores import (
     height_errors,
     height_steps,
     hold_scores,
+    score,
 )
+from sim.flight.seeds import format_seed_table, summarize_flights
 from sim.trajectory import Trajectory
 
 MISSION = parse_mission({"steps": [{"arm": True}, {"takeoff": 3}, {"mode": "LOITER"},
@@ -133,3 +135,19 @@ def test_verdict_says_whose_height_wandered():
     assert loiter and line.startswith("READY for LOITER: drift 0.10 m; its height wandered "
                                       "0.60 m: the autopilot's own height was off by 0.62 m in "
                                       "flight, ours by 0.08 m")
+
+
+def test_seed_table_has_a_line_per_seed_and_the_worst_over_them():
+    reports = [flight_report(_run(), score(_run())) for _ in range(2)]
+    reports[1].update(hold_drift_m=0.4, ready_loiter=False, ready_guided=False,
+                      verdict="NOT READY: LOITER drifted 0.40 m (limit 0.3 m)")
+    summary = summarize_flights(reports)
+    assert summary["runs"] == 2 and summary["hold_drift_m_max"] == 0.4
+    assert summary["armed"] == 2 and summary["ready_loiter"] == 1
+    text = format_seed_table([3, 7], reports, summary)
+    lines = text.splitlines()
+    assert lines[3].split()[:4] == ["3", "READY-G", "yes", "n/a"]  # no extnav in the record
+    assert lines[4].split()[:2] == ["7", "NOT-READY"] and lines[4].split()[4] == "0.40"
+    assert "ready for LOITER 1, for GUIDED 1, armed 2" in text
+    assert "worst: LOITER drift 0.400 m, corner 0.100 m" in text
+    assert lines[-1] == "     7  NOT READY: LOITER drifted 0.40 m (limit 0.3 m)"

@@ -58,6 +58,7 @@ KEYS = {
     "corner_error_max_m": "the largest horizontal corner error (truth), m (None: a corner not "
                           "reached)",
     "corner_height_error_max_m": "the largest vertical corner error (truth), m",
+    "height_wander_m": "the largest vertical hold drift or corner error (truth), m",
     "autopilot_height_error_m": "airborne, the largest error of the autopilot's own height "
                                 "from the arming point (truth), m",
     "our_height_error_m": "airborne, the largest error of the height we sent, from the arming "
@@ -170,6 +171,7 @@ def flight_report(run: object, s: FlightScores) -> dict:
         "holds": [asdict(h) for h in s.holds], "hold_drift_m": loiter_drift(s),
         "corners": [asdict(c) for c in s.corners], "corner_error_max_m": corner_max(s),
         "corner_height_error_max_m": corner_max(s, "error_z_m"),
+        "height_wander_m": height_drift(s),
         "autopilot_height_error_m": s.heights.autopilot_m, "our_height_error_m": s.heights.ours_m,
         "height_steps": [asdict(h) for h in s.height_steps],
         "height_step_max_m": max((h.step_m for h in s.height_steps), default=0.0),

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 
-HEADER = ("seed  verdict     armed  extnav s   LOITER   corner   height  failsafes    ATE m"
-          "  NEES  VISO_DELAY\n"
-          "                          from       drift    max m  step m                    "
-          "  pos   suggested\n"
-          "                          lift-off   m")
+HEADER = ("seed  verdict    armed  extnav s  LOITER  corner  height wander, error  height"
+          "  fail-    ATE m  NEES  VISO_DELAY\n"
+          "                         from      drift   max m   truth  autopilot  ours    step"
+          "  safes           pos   suggested\n"
+          "                         lift-off  m                                          m")
 
 
 def _cell(value: float | None, fmt: str, width: int) -> str:
@@ -29,11 +29,14 @@ def format_seed_table(seeds: list[int], reports: list[dict], summary: dict) -> s
     lines = [HEADER]
     for seed, r in zip(seeds, reports, strict=True):
         e = r["expert"]
-        lines.append(f"{seed:>4}  {_short(r):<10}{'yes' if r['armed'] else 'no':>6}"
+        lines.append(f"{seed:>4}  {_short(r):<9}{'yes' if r['armed'] else 'no':>6}"
                      f"{_cell(r['extnav_after_takeoff_s'], '+.1f', 10)}"
-                     f"{_cell(r['hold_drift_m'], '.3f', 9)}"
-                     f"{_cell(r['corner_error_max_m'], '.3f', 9)}"
-                     f"{_cell(r['height_step_max_m'], '.3f', 8)}{len(r['failsafes']):>11}"
+                     f"{_cell(r['hold_drift_m'], '.2f', 8)}"
+                     f"{_cell(r['corner_error_max_m'], '.2f', 8)}"
+                     f"{_cell(r['height_wander_m'], '.2f', 8)}"
+                     f"{_cell(r['autopilot_height_error_m'], '.2f', 11)}"
+                     f"{_cell(r['our_height_error_m'], '.2f', 6)}"
+                     f"{_cell(r['height_step_max_m'], '.2f', 8)}{len(r['failsafes']):>7}"
                      f"{_cell(e['ate_rmse_m'], '.3f', 9)}{_cell(e['nees_position'], '.2f', 6)}"
                      f"{_cell(r['suggested_viso_delay_ms'], '.0f', 12)}")
     s = summary
@@ -45,8 +48,11 @@ def format_seed_table(seeds: list[int], reports: list[dict], summary: dict) -> s
         f" / median {_cell(extnav['median'], '+.1f', 0)} / max {_cell(extnav['max'], '+.1f', 0)}"
         f" s ({extnav['n']} seeds)",
         f"  worst: LOITER drift {_cell(s['hold_drift_m_max'], '.3f', 0)} m, corner "
-        f"{_cell(s['corner_error_max_m'], '.3f', 0)} m, height step "
-        f"{_cell(s['height_step_max_m'], '.3f', 0)} m; ANEES position "
+        f"{_cell(s['corner_error_max_m'], '.3f', 0)} m, height wander "
+        f"{_cell(s['height_wander_m_max'], '.3f', 0)} m (the autopilot's height off by "
+        f"{_cell(s['autopilot_height_error_m_max'], '.3f', 0)} m, ours by "
+        f"{_cell(s['our_height_error_m_max'], '.3f', 0)} m), height step "
+        f"{_cell(s['height_step_max_m_max'], '.3f', 0)} m; ANEES position "
         f"{_cell(s['anees_position'], '.2f', 0)}",
         "verdicts:"]
     lines += [f"  {seed:>4}  {r['verdict']}" for seed, r in zip(seeds, reports, strict=True)]
@@ -75,6 +81,8 @@ def summarize_flights(reports: list[dict]) -> dict:
             "max": max(extnav, default=None)},
         "hold_drift_m_max": max(_values(reports, "hold_drift_m"), default=None),
         "corner_error_max_m": (None if not corners or None in corners else max(corners)),
-        "height_step_max_m": max(_values(reports, "height_step_max_m"), default=None),
+        **{f"{key}_max": max(_values(reports, key), default=None)
+           for key in ("height_step_max_m", "height_wander_m", "autopilot_height_error_m",
+                       "our_height_error_m")},
         "anees_position": float(np.mean(nees)) if nees else None,
     }
