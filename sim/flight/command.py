@@ -10,9 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 from daemon.config import Config, load_config
@@ -22,6 +19,7 @@ from sim.flight.flight_run import FlightRun, Timing
 from sim.flight.loop import ClosedLoop
 from sim.flight.mission import DEFAULT_MISSION, Mission, load_mission
 from sim.flight.report import flight_report, format_flight
+from sim.flight.runner import step_printer
 from sim.flight.scores import score
 from sim.flight.seeds import format_seed_table, summarize_flights
 from sim.render_command import parse_size
@@ -74,24 +72,15 @@ def fly(mission: Mission, config: Config, seed: int, args: argparse.Namespace) -
     """One flight of `mission` as the arguments say."""
     size = parse_size(args.size)
     without = tuple(args.without)
+    prefix = None if args.quiet else f"fly {mission.name} seed {seed}"
     if args.realtime:
         from sim.flight.realtime import fly_realtime
 
-        return fly_realtime(mission, config, seed, size, without, args.load)
+        return fly_realtime(mission, config, seed, size, without, args.load, prefix)
     timing = Timing() if args.latency_ms is None else Timing(
         capture_to_send_s=args.latency_ms / 1e3)
-    progress = None if args.quiet else _progress(f"fly {mission.name} seed {seed}")
-    return ClosedLoop(mission, config, seed, size, without, timing, on_step=progress).run()
-
-
-def _progress(prefix: str) -> Callable[[str], None]:
-    """A line on stderr as each mission step starts, with the wall time so far."""
-    start = time.monotonic()
-
-    def show(line: str) -> None:
-        print(f"{prefix}: {line}  ({time.monotonic() - start:.0f} s)", file=sys.stderr,
-              flush=True)
-    return show
+    return ClosedLoop(mission, config, seed, size, without, timing,
+                      on_step=prefix and step_printer(prefix)).run()
 
 
 def run(args: argparse.Namespace) -> int:

@@ -32,6 +32,7 @@ from sim.flight.autopilot_side import AutopilotSide
 from sim.flight.flight_run import FlightRun, Timing
 from sim.flight.loop import flight_config
 from sim.flight.mission import Mission
+from sim.flight.runner import step_printer
 from sim.flight.world import FlightWorld
 from sim.replay.autopilot_process import VisionMessage
 from sim.replay.recording import Recorder
@@ -112,7 +113,7 @@ def _vision(parser: object, data: bytes, arrival: float) -> list[VisionMessage]:
 
 def _autopilot_process(conn: multiprocessing.connection.Connection, mission: Mission,
                        seed: int, size: tuple[int, int] | None, without: tuple[str, ...],
-                       truth_array: object, timing: Timing) -> None:
+                       truth_array: object, timing: Timing, progress: str | None) -> None:
     """The child: the autopilot's end on the wall clock, over UDP; its record on exit."""
     world = FlightWorld.of_preset(mission.world, seed, size)
     truth = TruthShare(truth_array)
@@ -120,7 +121,8 @@ def _autopilot_process(conn: multiprocessing.connection.Connection, mission: Mis
     conn.send(port.url)
     conn.recv()  # the service is built: power on
     boot = time.monotonic()
-    side = AutopilotSide(mission, world, seed, timing, without, 0.0)
+    side = AutopilotSide(mission, world, seed, timing, without, 0.0,
+                         progress and step_printer(progress))
     conn.send(boot)
     parser = ardupilotmega.MAVLink(None)
     parser.robust_parsing = True
@@ -160,8 +162,10 @@ async def _serve(service: Service, conn: multiprocessing.connection.Connection) 
 
 
 def fly_realtime(mission: Mission, config: Config, seed: int, size: tuple[int, int] | None,
-                 without: tuple[str, ...], load: int = 0) -> FlightRun:
-    """One real-time flight (see the module doc)."""
+                 without: tuple[str, ...], load: int = 0,
+                 progress: str | None = None) -> FlightRun:
+    """One real-time flight (see the module doc); `progress`: prefix of the step lines on
+    stderr (None: none)."""
     world = FlightWorld.of_preset(mission.world, seed, size)
     config = replace(flight_config(config, world),
                      camera={"source": "testpattern", "calibration": ""})
@@ -171,7 +175,7 @@ def fly_realtime(mission: Mission, config: Config, seed: int, size: tuple[int, i
     conn, child = multiprocessing.Pipe()
     process = multiprocessing.Process(target=_autopilot_process, name="sim-autopilot",
                                       args=(child, mission, seed, size, without, truth.array,
-                                            timing), daemon=True)
+                                            timing, progress), daemon=True)
     process.start()
     busy = [multiprocessing.Process(target=_busy, daemon=True) for _ in range(load)]
     for p in busy:

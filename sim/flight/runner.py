@@ -6,6 +6,8 @@ changes mode by itself (a failsafe). What happened is kept per step for the repo
 
 from __future__ import annotations
 
+import sys
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
@@ -233,3 +235,13 @@ HANDLERS = {Action.WAIT: MissionRunner._wait, Action.MODE: MissionRunner._mode,
             Action.ARM: MissionRunner._arm, Action.TAKEOFF: MissionRunner._takeoff,
             Action.HOLD: MissionRunner._hold, Action.GOTO: MissionRunner._goto,
             Action.LAND: MissionRunner._land}
+
+
+def step_printer(prefix: str) -> Callable[[str], None]:
+    """A MissionRunner `on_step` that prints each step's line on stderr with the wall time."""
+    start = time.monotonic()
+
+    def show(line: str) -> None:
+        print(f"{prefix}: {line}  ({time.monotonic() - start:.0f} s)", file=sys.stderr,
+              flush=True)
+    return show
