@@ -61,8 +61,8 @@ class Lowpass2:
 
 
 class Imu:
-    """One IMU. `sample(...)` each loop; `accel`/`gyro` are the filtered values, `take_mean()`
-    the raw specific force averaged since the last call (the estimator's delta velocity)."""
+    """One IMU. `sample(...)` each loop; `accel`/`gyro` are the filtered values, `raw_accel`
+    the last raw sample, `take_mean()` the raw specific force averaged since the last call."""
 
     def __init__(self, spec: ImuSpec, rng: np.random.Generator, sample_hz: float,
                  accel_filter_hz: float, gyro_filter_hz: float) -> None:
@@ -77,6 +77,7 @@ class Imu:
         self._accel_lpf = Lowpass2(accel_filter_hz, sample_hz)
         self._gyro_lpf = Lowpass2(gyro_filter_hz, sample_hz)
         self.accel = np.array([0.0, 0.0, -GRAVITY])
+        self.raw_accel = self.accel.copy()
         self.gyro = np.zeros(3)
         self._sum = np.zeros(3)
         self._count = 0
@@ -92,6 +93,7 @@ class Imu:
         raw_accel = np.clip(np.round(raw_accel / ACCEL_LSB) * ACCEL_LSB, -ACCEL_RANGE,
                             ACCEL_RANGE)
         raw_gyro = np.clip(np.round(raw_gyro / GYRO_LSB) * GYRO_LSB, -GYRO_RANGE, GYRO_RANGE)
+        self.raw_accel = raw_accel
         self.accel = self._accel_lpf.apply(raw_accel)
         self.gyro = self._gyro_lpf.apply(raw_gyro)
         self._sum += raw_accel

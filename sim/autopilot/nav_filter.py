@@ -48,22 +48,42 @@ class NavFilter:
         """Propagate by dt with the NED acceleration (m/s^2, gravity removed)."""
         self.position = self.position + self.velocity * dt + 0.5 * accel_ned * dt * dt
         self.velocity = self.velocity + accel_ned * dt
+        self._history.append((t, self.position.copy(), self.velocity.copy()))
+        self._propagate_cov(dt, t)
+
+    def predict_steps(self, accels: np.ndarray, dt: float, t: float) -> None:
+        """Propagate by dt in len(accels) equal steps (an IMU faster than the filter's
+        fusion step); the covariance once for the whole dt."""
+        step = dt / len(accels)
+        start = t - dt
+        for k, accel in enumerate(accels, start=1):
+            self.position = self.position + self.velocity * step + 0.5 * accel * step * step
+            self.velocity = self.velocity + accel * step
+            self._history.append((start + k * step, self.position.copy(), self.velocity.copy()))
+        self._propagate_cov(dt, t)
+
+    def _propagate_cov(self, dt: float, t: float) -> None:
         F = np.array([[1.0, dt], [0.0, 1.0]])
         q = (self.accel_noise * dt) ** 2
         Q = np.array([[0.25 * dt * dt * q, 0.5 * dt * q], [0.5 * dt * q, q]])
         self.cov = F @ self.cov @ F.T + Q
         self.t = t
-        self._history.append((t, self.position.copy(), self.velocity.copy()))
         while self._history and self._history[0][0] < t - HISTORY_S:
             self._history.popleft()
 
     def state_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """The estimate at time t (the oldest kept, or now, outside the history)."""
+        """The estimate at time t, interpolated between the kept steps (the oldest kept, or now,
+        outside the history): a measurement is compared with the state of its own time, as
+        EKF3/EKF2 do on their delayed horizon, not with the nearest prediction step."""
         if not self._history or t >= self.t:
             return self.position, self.velocity
         times = np.array([h[0] for h in self._history])
-        i = int(np.clip(np.searchsorted(times, t), 0, len(times) - 1))
-        return self._history[i][1], self._history[i][2]
+        i = int(np.searchsorted(times, t))
+        if i == 0:
+            return self._history[0][1], self._history[0][2]
+        (t0, p0, v0), (t1, p1, v1) = self._history[i - 1], self._history[i]
+        f = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
+        return p0 + f * (p1 - p0), v0 + f * (v1 - v0)
 
     def fuse(self, axes: list[int], value: np.ndarray, var: float, t_meas: float,
              index: int, gate_sigma: float) -> Fusion:
