@@ -69,6 +69,8 @@ class Imu:
         self.spec = spec
         self.rng = rng
         self.dt = 1.0 / sample_hz
+        self._accel_sigma = spec.accel_density / math.sqrt(self.dt)  # white noise per sample
+        self._gyro_sigma = spec.gyro_density / math.sqrt(self.dt)
         self.accel_bias = rng.normal(0.0, spec.accel_bias, 3)
         self.gyro_bias = rng.normal(0.0, spec.gyro_bias, 3)
         self._phase = rng.uniform(0.0, 2 * math.pi, 4)
@@ -86,10 +88,10 @@ class Imu:
                thrust_ratio: np.ndarray) -> None:
         """One raw sample of the true specific force and rates (body), the motors turning at
         thrust_ratio of their hover thrust."""
+        noise = self.rng.standard_normal(6)
         raw_accel = specific_force + self.accel_bias + self._vibration(thrust_ratio) + \
-            self.rng.normal(0.0, self.spec.accel_density / math.sqrt(self.dt), 3)
-        raw_gyro = rates + self.gyro_bias + \
-            self.rng.normal(0.0, self.spec.gyro_density / math.sqrt(self.dt), 3)
+            noise[:3] * self._accel_sigma
+        raw_gyro = rates + self.gyro_bias + noise[3:] * self._gyro_sigma
         raw_accel = np.clip(np.round(raw_accel / ACCEL_LSB) * ACCEL_LSB, -ACCEL_RANGE,
                             ACCEL_RANGE)
         raw_gyro = np.clip(np.round(raw_gyro / GYRO_LSB) * GYRO_LSB, -GYRO_RANGE, GYRO_RANGE)
