@@ -43,10 +43,11 @@ class Flight:
     """One flight. `vision` False: the companion stays silent."""
 
     def __init__(self, seed: int = 0, viso_type: int = 2, position_var: float = 1e-4,
-                 dynamics: Dynamics | None = None, **changes: object) -> None:
+                 dynamics: Dynamics | None = None, requested: dict | None = None,
+                 **changes: object) -> None:
         self.link = VirtualLink(configured_options(
-            viso_type=viso_type, requested={}, dynamics=dynamics or Dynamics(seed=seed),
-            **changes))
+            viso_type=viso_type, requested=requested or {},
+            dynamics=dynamics or Dynamics(seed=seed), **changes))
         self.companion = NoisyCompanion(self.link, position_var=position_var,
                                         rng=np.random.default_rng(seed))
         self.gcs = mavlink2.MAVLink(None, srcSystem=GCS_SYSTEM, srcComponent=190)
