@@ -86,11 +86,11 @@ class NavFilter:
         EKF3/EKF2 do on their delayed horizon, not with the nearest prediction step."""
         if not self._times or t >= self.t:
             return self.position, self.velocity
-        i = max(bisect.bisect_left(self._times, t), bisect.bisect_left(
-            self._times, self.t - HISTORY_S))
+        first = bisect.bisect_left(self._times, self.t - HISTORY_S)  # oldest still kept
+        i = bisect.bisect_left(self._times, t)
         dp, dv = self._offset
-        if i == 0 or i >= len(self._times):
-            i = min(i, len(self._times) - 1)
+        if i <= first or i >= len(self._times):
+            i = min(max(i, first), len(self._times) - 1)
             return self._positions[i] + dp, self._velocities[i] + dv
         t0, t1 = self._times[i - 1], self._times[i]
         f = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
