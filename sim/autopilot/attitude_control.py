@@ -81,6 +81,15 @@ class AttitudeControl:
         self.rate_target = np.zeros(3)
         self._desired = np.zeros(3)
         self._yaw_rate_mode = True
+        self.refresh()
+
+    def refresh(self) -> None:
+        """Read the loop's gains and limits again (the flight modes' rate, not the loop's)."""
+        p = self.params
+        self._accel = np.radians([p.get(f"ATC_ACCEL_{a}_MAX") / 100.0 for a in "RPY"])
+        self._angle_p = [p.get(f"ATC_ANG_{a}_P") for a in AXES]
+        self._input_tc = max(p.get("ATC_INPUT_TC"), 0.01)
+        self._slew_yaw = math.radians(p.get("ATC_SLEW_YAW") / 100.0)
 
     def _pid(self, axis: str) -> Pid:
         g = {k: self.params.get(f"ATC_RAT_{axis}_{k}") for k in
@@ -89,7 +98,7 @@ class AttitudeControl:
 
     def accel_max(self) -> np.ndarray:
         """ATC_ACCEL_R/P/Y_MAX in rad/s^2 (0 = no limit)."""
-        return np.radians([self.params.get(f"ATC_ACCEL_{a}_MAX") / 100.0 for a in "RPY"])
+        return self._accel
 
     def angle_max(self) -> float:
         return math.radians(self.params.get("ANGLE_MAX") / 100.0)
@@ -133,8 +142,8 @@ class AttitudeControl:
         self._shape(dt)
         target = euler_to_matrix(*self.target)
         error = rotation_vector(attitude.T @ target)  # body frame
-        accel = self.accel_max()
-        gains = [self.params.get(f"ATC_ANG_{a}_P") for a in AXES]
+        accel = self._accel
+        gains = self._angle_p
         correction = np.array([sqrt_controller(error[k], gains[k], accel[k], dt)
                                for k in range(3)])
         body_ff = euler_rates_to_body(self.target[0], self.target[1], self.ff_rate)
@@ -145,15 +154,15 @@ class AttitudeControl:
                          for k in range(3)])
 
     def _shape(self, dt: float) -> None:
-        tc = max(self.params.get("ATC_INPUT_TC"), 0.01)
-        accel = self.accel_max()
+        tc = self._input_tc
+        accel = self._accel
         for k in (0, 1):
             error = self._desired[k] - self.target[k]
             self.ff_rate[k] = shape_angle(error, 1.0 / tc, accel[k], self.ff_rate[k], dt)
         if self._yaw_rate_mode:
             self.ff_rate[2] = shape_rate(self.ff_rate[2], self._desired[2], accel[2], dt)
         else:
-            slew = math.radians(self.params.get("ATC_SLEW_YAW") / 100.0)
+            slew = self._slew_yaw
             error = wrap_pi(self._desired[2] - self.target[2])
             rate = shape_angle(error, 1.0 / tc, accel[2], self.ff_rate[2], dt)
             self.ff_rate[2] = min(max(rate, -slew), slew)

@@ -46,7 +46,7 @@ def sqrt_controller(error: float, p: float, second_ord_lim: float, dt: float) ->
 def sqrt_controller_vec(error: np.ndarray, p: float, second_ord_lim: float,
                         dt: float) -> np.ndarray:
     """sqrt_controller along the error vector's direction."""
-    length = float(np.linalg.norm(error))
+    length = math.sqrt(float(np.dot(error, error)))
     if length < 1e-12:
         return np.zeros_like(error)
     return error * (sqrt_controller(length, p, second_ord_lim, dt) / length)
@@ -69,7 +69,7 @@ def shape_angle(error: float, smoothing_gain: float, accel_max: float, target_ra
 
 def limit_length(v: np.ndarray, limit: float) -> tuple[np.ndarray, bool]:
     """v scaled down to `limit` if longer; whether it was."""
-    length = float(np.linalg.norm(v))
+    length = math.sqrt(float(np.dot(v, v)))
     if limit > 0 and length > limit:
         return v * (limit / length), True
     return v, False

@@ -151,6 +151,7 @@ class CopterFlight:
     def update(self, nav: NavEstimate, position_ok: bool, now: float, dt: float) -> None:
         """The 50 Hz step: land detector, the mode, and Copter's housekeeping."""
         self.now, self.nav, self.position_ok = now, nav, position_ok
+        self.att.refresh()
         self._land_detector(dt)
         self.mode.run(self, dt)
         self._throttle_mix(dt)

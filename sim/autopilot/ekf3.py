@@ -148,7 +148,10 @@ class Ekf3:
             return
         accel = reading.accel_ned if np.isfinite(reading.accel_ned).all() else np.zeros(3)
         self.yaw = float(reading.attitude.as_euler("ZYX")[0])
-        self.filter.predict(accel, dt, now)
+        if reading.accel_steps is not None and np.isfinite(reading.accel_steps).all():
+            self.filter.predict_steps(reading.accel_steps, dt, now)  # at the IMU rate
+        else:
+            self.filter.predict(accel, dt, now)
         if self._pos is not None:
             self._pos = self._lever_arm(self._pos, reading)
         self._update_aiding(now)

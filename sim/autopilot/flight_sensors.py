@@ -37,6 +37,7 @@ class FlightSensors:
         spec = vehicle.dynamics.rangefinder
         self.rangefinder = Rangefinder(spec, rng) if spec is not None else None
         self.attitude = self.ahrs.attitude(vehicle.body.rotation)
+        self._accel_steps: list[np.ndarray] = []
         self.calibrate_baro()
 
     def calibrate_baro(self) -> None:
@@ -52,6 +53,7 @@ class FlightSensors:
         hover = frame.mass_kg * GRAVITY / 4.0
         self.imu.sample(body.specific_force, body.rates, thrusts / hover)
         self.attitude = self.ahrs.attitude(body.rotation)
+        self._accel_steps.append(self.attitude @ self.imu.raw_accel + GRAVITY_NED)
         height = body.ground_z - body.position[2]
         wash = self.baro.disturbance(height, float(thrusts.sum()), 4.0 * hover,
                                      frame.disc_area_m2)
@@ -81,11 +83,14 @@ class FlightSensors:
         return self.params.get("RNGFND1_MIN_CM") <= d <= self.params.get("RNGFND1_MAX_CM")
 
     def reading(self) -> Reading:
-        """What the estimator takes for its step: the raw specific force averaged over it."""
+        """What the estimator takes for its step: every raw sample since the last, turned to
+        NED by the AHRS (EKF3 predicts with each IMU delta velocity), and their mean."""
         mean = self.imu.take_mean()
+        steps = np.array(self._accel_steps) if self._accel_steps else None
+        self._accel_steps = []
         accel_ned = self.attitude @ mean + GRAVITY_NED
         return Reading(accel_ned, Rotation.from_matrix(self.attitude), self.imu.gyro.copy(),
-                       self.baro.altitude, self.baro.ground)
+                       self.baro.altitude, self.baro.ground, steps)
 
     def reported(self) -> dict:
         """The values a stream message carries now (sim.autopilot.vehicle.sensor_message)."""

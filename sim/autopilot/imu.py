@@ -61,14 +61,16 @@ class Lowpass2:
 
 
 class Imu:
-    """One IMU. `sample(...)` each loop; `accel`/`gyro` are the filtered values, `take_mean()`
-    the raw specific force averaged since the last call (the estimator's delta velocity)."""
+    """One IMU. `sample(...)` each loop; `accel`/`gyro` are the filtered values, `raw_accel`
+    the last raw sample, `take_mean()` the raw specific force averaged since the last call."""
 
     def __init__(self, spec: ImuSpec, rng: np.random.Generator, sample_hz: float,
                  accel_filter_hz: float, gyro_filter_hz: float) -> None:
         self.spec = spec
         self.rng = rng
         self.dt = 1.0 / sample_hz
+        self._accel_sigma = spec.accel_density / math.sqrt(self.dt)  # white noise per sample
+        self._gyro_sigma = spec.gyro_density / math.sqrt(self.dt)
         self.accel_bias = rng.normal(0.0, spec.accel_bias, 3)
         self.gyro_bias = rng.normal(0.0, spec.gyro_bias, 3)
         self._phase = rng.uniform(0.0, 2 * math.pi, 4)
@@ -77,6 +79,7 @@ class Imu:
         self._accel_lpf = Lowpass2(accel_filter_hz, sample_hz)
         self._gyro_lpf = Lowpass2(gyro_filter_hz, sample_hz)
         self.accel = np.array([0.0, 0.0, -GRAVITY])
+        self.raw_accel = self.accel.copy()
         self.gyro = np.zeros(3)
         self._sum = np.zeros(3)
         self._count = 0
@@ -85,13 +88,14 @@ class Imu:
                thrust_ratio: np.ndarray) -> None:
         """One raw sample of the true specific force and rates (body), the motors turning at
         thrust_ratio of their hover thrust."""
+        noise = self.rng.standard_normal(6)
         raw_accel = specific_force + self.accel_bias + self._vibration(thrust_ratio) + \
-            self.rng.normal(0.0, self.spec.accel_density / math.sqrt(self.dt), 3)
-        raw_gyro = rates + self.gyro_bias + \
-            self.rng.normal(0.0, self.spec.gyro_density / math.sqrt(self.dt), 3)
+            noise[:3] * self._accel_sigma
+        raw_gyro = rates + self.gyro_bias + noise[3:] * self._gyro_sigma
         raw_accel = np.clip(np.round(raw_accel / ACCEL_LSB) * ACCEL_LSB, -ACCEL_RANGE,
                             ACCEL_RANGE)
         raw_gyro = np.clip(np.round(raw_gyro / GYRO_LSB) * GYRO_LSB, -GYRO_RANGE, GYRO_RANGE)
+        self.raw_accel = raw_accel
         self.accel = self._accel_lpf.apply(raw_accel)
         self.gyro = self._gyro_lpf.apply(raw_gyro)
         self._sum += raw_accel

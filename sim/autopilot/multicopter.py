@@ -106,7 +106,9 @@ class Multicopter:
 
     def _fly(self, dt: float, torque: np.ndarray) -> None:
         inertia = self.frame.inertia
-        spin = np.cross(self.rates, inertia * self.rates)
+        p, q, r = self.rates
+        ix, iy, iz = inertia
+        spin = np.array([q * r * (iz - iy), p * r * (ix - iz), p * q * (iy - ix)])  # w x Iw
         self.rates = np.clip(self.rates + (torque - spin) / inertia * dt,
                              -self.frame.max_angular_rate, self.frame.max_angular_rate)
         self.velocity = self.velocity + self.accel * dt
