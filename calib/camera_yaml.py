@@ -1,16 +1,27 @@
 """The `camera.yaml` file the tracker, the service and the datasets share.
 
 Keys: width, height, fx, fy, cx, cy, distortion_model, distortion. Other keys (dataset, fps,
-comments) are allowed and ignored.
+comments) are allowed and ignored. A depth camera adds a `depth` mapping (calib.depth_camera):
+
+    depth:
+      scale: 0.001          # metres per unit of the 16-bit depth image (TUM: 0.0002)
+      min_m: 0.3            # measurements outside min_m..max_m are dropped (max_m 0: no limit)
+      max_m: 8.0
+      registered: true      # depth already in the colour camera's pixels
+      # registered: false needs the depth camera and where it is:
+      # camera: {width: 848, height: 480, fx: ..., fy: ..., cx: ..., cy: ...}
+      # T_color_depth: [[1, 0, 0, 0.015], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from calib.camera import CameraModel, canonical_model_name
+from calib.depth_camera import DepthSpec
 from sdvl.errors import InputError, read_text
 
 REQUIRED_KEYS = ("width", "height", "fx", "fy", "cx", "cy")
@@ -91,9 +102,74 @@ def camera_to_mapping(camera: CameraModel) -> dict:
     }
 
 
-def save_camera(camera: CameraModel, path: str | Path, comment: str | None = None) -> None:
-    """Write a camera.yaml that `load_camera` reads back to the same values."""
-    text = yaml.safe_dump(camera_to_mapping(camera), sort_keys=False, default_flow_style=None)
+DEPTH_KEYS = ("scale", "min_m", "max_m", "registered", "camera", "T_color_depth")
+
+
+def depth_from_mapping(data: dict, path: Path | str = "<config>",
+                       lines: dict[str, int] | None = None) -> DepthSpec | None:
+    """The DepthSpec of a camera.yaml's `depth` mapping; None when there is none."""
+    section = data.get("depth")
+    if section is None:
+        return None
+    line = (lines or {}).get("depth")
+    if not isinstance(section, dict):
+        raise InputError("'depth' must be a mapping (scale, min_m, max_m, registered, ...)",
+                         path, line)
+    unknown = sorted(set(section) - set(DEPTH_KEYS))
+    if unknown:
+        raise InputError(f"unknown key(s) depth.{', depth.'.join(unknown)} (known: "
+                         f"{', '.join(DEPTH_KEYS)})", path, line)
+    values = {k: _number(section, k, path, {k: line}) for k in ("scale", "min_m", "max_m")
+              if k in section}
+    registered = section.get("registered", True)
+    if not isinstance(registered, bool):
+        raise InputError(f"'depth.registered' must be true or false, got {registered!r}", path,
+                         line)
+    camera = section.get("camera")
+    if camera is not None:
+        if not isinstance(camera, dict):
+            raise InputError("'depth.camera' must be a mapping (width, height, fx, ...)", path,
+                             line)
+        camera = camera_from_mapping(camera, path, {})
+    T = section.get("T_color_depth")
+    if T is not None:
+        try:
+            T = np.array(T, dtype=np.float64).reshape(4, 4)
+        except (TypeError, ValueError):
+            raise InputError("'depth.T_color_depth' must be a 4x4 list of numbers", path,
+                             line) from None
+    try:
+        return DepthSpec(registered=registered, camera=camera, T_c_d=T, **values)
+    except InputError as exc:
+        raise InputError(exc.message, path, line) from None
+
+
+def load_depth_spec(path: str | Path) -> DepthSpec | None:
+    """The `depth` mapping of a camera.yaml as a DepthSpec (None when the file has none)."""
+    path = Path(path)
+    data, lines = _read_mapping(path)
+    return depth_from_mapping(data, path, lines)
+
+
+def depth_to_mapping(spec: DepthSpec) -> dict:
+    """The camera.yaml `depth` keys of a DepthSpec, as plain Python values."""
+    out = {"scale": float(spec.scale), "min_m": float(spec.min_m), "max_m": float(spec.max_m),
+           "registered": bool(spec.registered)}
+    if spec.camera is not None:
+        out["camera"] = camera_to_mapping(spec.camera)
+    if spec.T_c_d is not None:
+        out["T_color_depth"] = [[float(v) for v in row] for row in spec.T_c_d]
+    return out
+
+
+def save_camera(camera: CameraModel, path: str | Path, comment: str | None = None,
+                depth: DepthSpec | None = None) -> None:
+    """Write a camera.yaml that `load_camera` (and `load_depth_spec`) read back to the same
+    values."""
+    data = camera_to_mapping(camera)
+    if depth is not None:
+        data["depth"] = depth_to_mapping(depth)
+    text = yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
     if comment:
         text = "".join(f"# {line}\n" for line in comment.splitlines()) + text
     Path(path).write_text(text)

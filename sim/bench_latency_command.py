@@ -145,6 +145,6 @@ def bench_test_pattern(config: Config, args: argparse.Namespace) -> dict:
         asyncio.run(measure(service, recorder, args.frames + args.warmup))
         time.sleep(0.2)
     finally:
-        received = autopilot.finish()
+        received = autopilot.finish().vision
     return report(recorder.rows, received, args.warmup, service.capture.slot.dropped,
                   _estimator(config))

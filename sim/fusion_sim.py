@@ -27,6 +27,7 @@ GRAVITY = np.array([0.0, 0.0, 9.80665])
 DT = 0.005  # truth at 200 Hz
 BOOT_OFFSET = 123.456  # our clock minus the autopilot's boot clock
 CAMERA_HEIGHT = 0.15  # camera above ground when landed
+CHI2_3DOF_3SIGMA = 14.16  # chi-square, 3 dof, with the tail of a 3-sigma Gaussian (0.27 %)
 
 
 @dataclass
@@ -102,6 +103,9 @@ class SensorOptions:
     baro: bool = True
     baro_noise_m: float = 0.2
     latency: tuple = (0.005, 0.02)
+    # HEARTBEAT's armed flag (armed at `armed_at_s`) and EXTENDED_SYS_STATE's landed state
+    flight_state: bool = True
+    armed_at_s: float = 0.5
 
 
 SENSOR_VARIANTS = {"full": SensorOptions(),
@@ -158,6 +162,8 @@ def autopilot_messages(truth: Truth, opt: SensorOptions, rng: np.random.Generato
             if msg is not None:
                 out.append((t + BOOT_OFFSET + rng.uniform(*opt.latency), msg))
 
+    if opt.flight_state:
+        out += _flight_state_messages(truth, opt, rng)
     bias = np.array(opt.accel_bias)
     if opt.imu is not None:
         def imu(i: int, ms: int):
@@ -201,6 +207,26 @@ def autopilot_messages(truth: Truth, opt: SensorOptions, rng: np.random.Generato
     return out
 
 
+def _flight_state_messages(truth: Truth, opt: SensorOptions, rng: np.random.Generator) -> list:
+    """HEARTBEAT at 1 Hz (armed from opt.armed_at_s; STANDBY while on the ground, as
+    ArduCopter's) and EXTENDED_SYS_STATE at 5 Hz (on the ground while the vehicle has not left
+    it), as (arrival, message)."""
+    left = int(np.argmax((-truth.p[:, 2] > 0.02) | (np.linalg.norm(truth.v, axis=1) > 0.05)))
+    out = []
+    for t in np.arange(0.0, truth.t[-1], 1.0):
+        armed = mavlink2.MAV_MODE_FLAG_SAFETY_ARMED if t >= opt.armed_at_s else 0
+        status = mavlink2.MAV_STATE_STANDBY if truth.at(t) < left else mavlink2.MAV_STATE_ACTIVE
+        out.append((t + BOOT_OFFSET, mavlink2.MAVLink_heartbeat_message(
+            mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA,
+            armed | mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 0, status, 3)))
+    for t in np.arange(0.0, truth.t[-1], 0.2):
+        landed = (mavlink2.MAV_LANDED_STATE_ON_GROUND if truth.at(t) < left
+                  else mavlink2.MAV_LANDED_STATE_IN_AIR)
+        out.append((t + BOOT_OFFSET + rng.uniform(*opt.latency),
+                    mavlink2.MAVLink_extended_sys_state_message(0, landed)))
+    return out
+
+
 def _random_rotation(rng: np.random.Generator) -> np.ndarray:
     return Rotation.random(random_state=rng.integers(1 << 31)).as_matrix()
 
@@ -214,9 +240,13 @@ def tracker_results(truth: Truth, opt: TrackerOptions, mounting: MountingConfig,
     R_b_c = body_from_camera(mounting)
     out, last_p, seg, dt = [], None, None, 1.0 / opt.fps
     scales = [] if scales is None else scales
-    for t in np.arange(opt.start_s, truth.t[-1], dt):
+    for t in np.arange(0.0, truth.t[-1], dt):
         i = truth.at(t)
         t_capture = t + BOOT_OFFSET
+        if t < opt.start_s:  # the camera runs, the map does not exist yet
+            out.append((t_capture + opt.delay_s, FrameResult(t, None, "initializing"),
+                        t_capture))
+            continue
         if any(a <= t < b for a, b in opt.lost):
             out.append((t_capture + opt.delay_s, FrameResult(t, None, "lost"), t_capture))
             seg = None
@@ -311,6 +341,7 @@ class Score:
     velocity_rmse_m_s: float
     nees_position: float  # mean NEES per degree of freedom
     nees_velocity: float
+    overconfident_fraction: float = 0.0  # position error beyond 3 sigma (chi-square, 3 dof)
 
     @property
     def position_pct(self) -> float:
@@ -323,12 +354,14 @@ class Score:
                 "position_pct": self.position_pct}
 
 
-def score(flight: Flight, estimates: list) -> Score:
-    """Compare published estimates with the truth from the first one on (it defines the local
-    frame's origin, daemon.fusion.state.NavFilter.fix_origin): no other alignment. NEES in
-    the autopilot's heading frame (sim/replay/fusion_scores.py)."""
+def score(flight: Flight, estimates: list, from_s: float = 0.0) -> Score:
+    """Compare the estimates published from flight time `from_s` on with the truth, from the
+    first of them on (positions relative to it): no other alignment. With from_s = 0 that is
+    the local frame's own origin, where the vehicle started. NEES in the autopilot's heading
+    frame (sim/replay/fusion_scores.py)."""
     truth = flight.truth
-    published = [(t_capture, e) for t_capture, e in estimates if e is not None]
+    published = [(t_capture, e) for t_capture, e in estimates
+                 if e is not None and t_capture - BOOT_OFFSET >= from_s]
     if published:
         first_t, first = published[0]
         start = truth.p[truth.at(first_t - BOOT_OFFSET)]
@@ -348,11 +381,12 @@ def score(flight: Flight, estimates: list) -> Score:
         head_err.append(np.degrees(np.arctan2(R[1, 0], R[0, 0])))
         times.append(t)
     if not times:
-        return Score(0, np.inf, np.inf, 0.0, np.inf, np.inf, np.inf, np.inf)
+        return Score(0, np.inf, np.inf, 0.0, np.inf, np.inf, np.inf, np.inf, 1.0)
     rms = lambda a: float(np.sqrt(np.mean(np.sum(np.square(a), axis=-1))))  # noqa: E731
+    beyond = float(np.mean(3.0 * np.array(nees) > CHI2_3DOF_3SIGMA))
     return Score(len(times), times[0], rms(np.array(pos_err)), truth.distance(times[0], times[-1]),
                  rms(np.array(head_err)[:, None]), rms(np.array(vel_err)), float(np.mean(nees)),
-                 float(np.mean(nees_v)))
+                 float(np.mean(nees_v)), beyond)
 
 
 def fusion_config(**changes: object) -> FusionConfig:

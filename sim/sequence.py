@@ -29,6 +29,9 @@ class Sequence:
 
     `timestamps` are seconds; `image_loader(i)` returns frame i as a grey uint8 image, or
     `frame_iter` yields (t, image) for sources that can only be read in order (video).
+    `depth_loader(i)`, where the sequence has depth, returns frame i's depth map (float32
+    metres along the optical axis in the frame's pixels, 0 or NaN = no measurement), or None
+    when that frame has none.
     """
 
     name: str
@@ -39,6 +42,7 @@ class Sequence:
     groundtruth: Trajectory | None = None
     imu: ImuSamples | None = None
     extras: dict = field(default_factory=dict)
+    depth_loader: Callable[[int], np.ndarray | None] | None = None
 
     def __len__(self) -> int:
         return int(self.timestamps.size)
@@ -61,6 +65,25 @@ class Sequence:
         if self.image_loader is None:
             raise InputError(f"sequence '{self.name}' can only be read in order")
         return self.image_loader(index)
+
+    @property
+    def has_depth(self) -> bool:
+        """True when the sequence comes with depth maps."""
+        return self.depth_loader is not None
+
+    def depth(self, index: int) -> np.ndarray | None:
+        """Depth map of frame `index` (None without one; see the class docstring)."""
+        if self.depth_loader is None:
+            raise InputError(f"sequence '{self.name}' has no depth (no depth.txt beside its "
+                             "frame list)")
+        return self.depth_loader(index)
+
+    def depth_at(self, t: float) -> np.ndarray | None:
+        """Depth map of the frame at time `t` (None without one)."""
+        index = int(np.searchsorted(self.timestamps, t))
+        if index >= len(self) or self.timestamps[index] != t:
+            raise InputError(f"sequence '{self.name}' has no frame at t = {t}")
+        return self.depth(index)
 
 
 def image_list_sequence(name: str, camera: CameraModel, times: np.ndarray, paths: list[Path],

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from sdvl.errors import InputError
+from sim.track_methods import METHODS, alignment, build_tracker, check_method, load_config
 from sim.trajectory import Trajectory, write_tum
 
 PROGRESS_EVERY_S = 2.0
@@ -49,6 +50,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="write one CSV row per frame: time, quality, matches, match "
                              "attempts, RANSAC hypotheses, inliers, keyframe and new-segment "
                              "flags, position error (m) after the Sim(3) alignment")
+    parser.add_argument("--method", default="sdvl", choices=list(METHODS),
+                        help="sdvl (monocular, ATE after Sim(3) alignment) or rgbd-sift (the "
+                             "RGB-D odometry baseline, needs depth; SE(3) alignment)")
     parser.add_argument("--json", action="store_true", help="print one JSON object at the end")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
@@ -87,8 +91,6 @@ def stage_stats(timings: list[dict[str, float]]) -> dict[str, dict[str, float]]:
 
 def run(args: argparse.Namespace) -> int:
     """Track the sequence and report."""
-    from vo.config import TrackerConfig
-
     if args.max_frames is not None and args.max_frames <= 0:
         raise InputError("--max-frames must be positive")
     if args.memory is not None and args.memory <= 0:
@@ -99,21 +101,25 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--mapping-period needs no --threaded, a period >= 1 and a "
                              "delay >= 0")
         slow = (args.mapping_period, args.mapping_delay)
-    config = TrackerConfig.from_toml(args.config) if args.config else TrackerConfig()
+    config = load_config(args.method, args.config)
     size = None
     if args.size is not None:
         from sim.render_command import parse_size  # loads the renderer: only when asked
 
         size = parse_size(args.size)
     sequence = resolve_sequence(args.sequence, size)
+    check_method(args.method, sequence)
+    if args.memory is not None and args.method != "sdvl":
+        raise InputError("--memory reports SDVL's map: it is for --method sdvl")
     rows: list[dict] | None = None if args.frames_csv is None else []
     report, estimate = track_sequence(sequence, config, args.threaded, args.max_frames,
                                       args.quiet, args.memory, frame_rows=rows,
-                                      slow_mapping=slow)
+                                      slow_mapping=slow, method=args.method)
     if args.out is not None and estimate is not None:
         write_tum(estimate, args.out)
     if rows is not None:
-        write_frames_csv(args.frames_csv, rows, sequence.groundtruth, estimate)
+        write_frames_csv(args.frames_csv, rows, sequence.groundtruth, estimate,
+                         alignment(args.method))
     print(json.dumps(report) if args.json else format_report(report))
     return 0
 
@@ -121,19 +127,18 @@ def run(args: argparse.Namespace) -> int:
 def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
                    quiet: bool, memory_every: int | None = None,
                    paced: bool = False, frame_rows: list[dict] | None = None,
-                   slow_mapping: tuple[int, int] | None = None
+                   slow_mapping: tuple[int, int] | None = None, method: str = "sdvl"
                    ) -> tuple[dict, Trajectory | None]:
     """Run the tracker over a sequence: the report (see build_report) and the trajectory;
     with `memory_every`, the report has "memory" samples and "peak_rss_mb"; `paced` offers
     each frame no earlier than its timestamp after the first (the camera's rate, so a mapping
     thread works in the gaps as in flight) instead of as fast as tracking goes; `frame_rows`
     gets one frame_row per frame tracked; `slow_mapping` (period, delay) emulates a slow
-    mapping thread (sim.slow_mapping), and the report counts the frames it "skipped"."""
+    mapping thread (sim.slow_mapping), and the report counts the frames it "skipped";
+    `method` picks the tracker (sim.track_methods)."""
     from sim.slow_mapping import SlowMapping
-    from vo.tracker import Tracker
 
-    tracker = Tracker(sequence.camera, config, threaded=threaded,
-                      stepped_mapping=slow_mapping is not None)
+    tracker = build_tracker(method, sequence, config, threaded, slow_mapping is not None)
     offer = tracker.process if slow_mapping is None else SlowMapping(tracker,
                                                                      *slow_mapping).offer
     skipped = 0
@@ -176,11 +181,12 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
         print(file=sys.stderr)
     estimate = Trajectory.from_matrices(np.array(times), np.array(poses)) if poses else None
     report = build_report(sequence, n_frames, estimate, np.array(segment), timings, qualities,
-                          first_pose_s)
+                          first_pose_s, alignment(method))
     report["skipped"] = skipped
     # local BAs the mapping thread skipped or ended early for a waiting frame (current map)
-    report["ba_skipped"] = tracker.mapper.skipped_ba
-    report["ba_shortened"] = tracker.mapper.shortened_ba
+    mapper = getattr(tracker, "mapper", None)
+    report["ba_skipped"] = getattr(mapper, "skipped_ba", 0)
+    report["ba_shortened"] = getattr(mapper, "shortened_ba", 0)
     if memory_every:
         report["memory"] = memory
         report["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
@@ -212,14 +218,14 @@ def frame_row(result) -> dict:
 
 
 def write_frames_csv(path: Path, rows: list[dict], groundtruth: Trajectory | None,
-                     estimate: Trajectory | None) -> None:
+                     estimate: Trajectory | None, align: str = "sim3") -> None:
     """Write the frame rows as CSV; error_m is the distance of each pose from the ground truth
-    after the Sim(3) alignment of the whole trajectory (as the ATE), empty without a pose or
-    ground truth."""
+    after the alignment (`align`) of the whole trajectory (as the ATE), empty without a pose
+    or ground truth."""
     from sim.metrics import align_trajectories
 
     if groundtruth is not None and estimate is not None and len(estimate) >= 3:
-        a = align_trajectories(groundtruth, estimate, "sim3")
+        a = align_trajectories(groundtruth, estimate, align)
         errors = np.linalg.norm(a.groundtruth.positions - a.estimate.positions, axis=1)
         by_time = dict(zip(a.estimate.t.tolist(), errors.tolist(), strict=True))
         for row in rows:
@@ -242,16 +248,17 @@ def memory_sample(tracker, frame: int) -> dict:
 
 def build_report(sequence, n_frames: int, estimate: Trajectory | None, segment: np.ndarray,
                  timings: list[dict[str, float]], qualities: list[str],
-                 first_pose_s: float | None) -> dict:
-    """The numbers `sdvl track` prints. Each map segment (a re-initialisation starts a new
-    one) has its own scale and frame, so the ATE over several segments is only indicative;
-    the longest segment's ATE is given too."""
+                 first_pose_s: float | None, align: str = "sim3") -> dict:
+    """The numbers `sdvl track` prints, the ATE after the alignment `align`. Each map segment
+    (a re-initialisation starts a new one) has its own scale and frame, so the ATE over
+    several segments is only indicative; the longest segment's ATE is given too."""
     from sim.metrics import evaluate
 
     stats = stage_stats(timings)
     track = stats.get("track", {"median": None, "p95": None})
     report = {
         "sequence": sequence.name,
+        "align": align,
         "frames": n_frames,
         "tracked": 0 if estimate is None else len(estimate),
         "ate_rmse_m": None,
@@ -270,7 +277,7 @@ def build_report(sequence, n_frames: int, estimate: Trajectory | None, segment: 
         "longest_segment_rot_rmse_deg": None,
     }
     if sequence.groundtruth is not None and estimate is not None and len(estimate) >= 3:
-        ev = evaluate(sequence.groundtruth, estimate, "sim3")
+        ev = evaluate(sequence.groundtruth, estimate, align)
         report.update(ate_rmse_m=ev.ate_rmse_m, rot_rmse_deg=ev.rot_rmse_deg, scale=ev.scale,
                       path_length_m=ev.path_length_m)
     if estimate is not None and len(segment):
@@ -278,7 +285,7 @@ def build_report(sequence, n_frames: int, estimate: Trajectory | None, segment: 
         part = estimate.subset(segment == longest)
         report["longest_segment_poses"] = len(part)
         if sequence.groundtruth is not None and len(part) >= 3:
-            ev = evaluate(sequence.groundtruth, part, "sim3")
+            ev = evaluate(sequence.groundtruth, part, align)
             report["longest_segment_ate_rmse_m"] = ev.ate_rmse_m
             report["longest_segment_rot_rmse_deg"] = ev.rot_rmse_deg
     return report
@@ -290,7 +297,8 @@ def format_report(r: dict) -> str:
              f"frames     {r['frames']}",
              f"tracked    {r['tracked']} ({100.0 * r['tracked'] / max(r['frames'], 1):.1f}%)"]
     if r["ate_rmse_m"] is not None:
-        lines.append(f"ATE RMSE   {r['ate_rmse_m']:.4f} m (Sim3), rotation RMSE "
+        label = {"sim3": "Sim3", "se3": "SE3"}.get(r["align"], r["align"])
+        lines.append(f"ATE RMSE   {r['ate_rmse_m']:.4f} m ({label}), rotation RMSE "
                      f"{r['rot_rmse_deg']:.2f} deg")
     else:
         lines.append("ATE RMSE   n/a (no ground truth)")

@@ -1,7 +1,9 @@
 """`sdvl track-table`: run tracker configurations (the thesis' eight: patch/ORB matching x local
 BA x outlier rejection) over sequences and print the table of ATE RMSE, frames tracked,
 tracking ms and mapping ms (like thesis tables 7.1-7.4), with the original C++ SDVL figures
-from the shared data README beside the real sequences."""
+from the shared data README beside the real sequences. The other methods of
+sim.track_methods (the RGB-D baseline `rgbd-sift`) can be rows too; their ATE is after an
+SE(3) alignment."""
 
 from __future__ import annotations
 
@@ -13,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from sdvl.errors import InputError
+from sim.track_methods import METHODS, alignment, check_method, load_config
 
 DEFAULT_SEQUENCES = ("vamr_ex01_checkerboard736", "kitti00_first200", "tum_fr1_rpy")
 # the eight configurations of thesis 7.1 (Config1..Config8): matcher x local BA x outlier
@@ -43,7 +46,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--configs", default="all",
                         help="comma-separated configurations out of "
                              f"{', '.join(CONFIGS)} (or Config1..Config8 as in the thesis; "
-                             "default: all eight)")
+                             "default: all eight), and other methods: "
+                             f"{', '.join(m for m in METHODS if m != 'sdvl')}")
     parser.add_argument("--threaded", action="store_true", help="mapping in its own thread")
     parser.add_argument("--paced", action="store_true",
                         help="with --threaded: offer the frames at the camera rate (their "
@@ -90,11 +94,8 @@ def run(args: argparse.Namespace) -> int:
         for round_ in range(1, args.repeat + 1):
             rows = []
             for name in names:
-                parameters = {**base_parameters(seq_name), **CONFIGS[name]}
-                if args.seed is not None:
-                    parameters["seed"] = args.seed
-                rows.append(table_run(seq_name, name, sequence, TrackerConfig.from_dict(
-                    parameters), args, track_sequence))
+                config = row_config(name, seq_name, args.seed, TrackerConfig)
+                rows.append(table_run(seq_name, name, sequence, config, args, track_sequence))
                 failed += "error" in rows[-1]
                 print(json.dumps(rows[-1]) if args.json else format_row(rows[-1]), flush=True)
             if args.repeat > 1:
@@ -111,13 +112,30 @@ def run(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+def row_config(name: str, seq_name: str, seed: int | None, config_class):
+    """The config of a row: a thesis configuration over the sequence's base preset, or another
+    method's defaults; `seed` (if given) replaces the config's."""
+    if name in METHODS:
+        config = load_config(name, None)
+        if seed is not None:
+            config.seed = seed
+        return config
+    parameters = {**base_parameters(seq_name), **CONFIGS[name]}
+    if seed is not None:
+        parameters["seed"] = seed
+    return config_class.from_dict(parameters)
+
+
 def table_run(seq_name: str, name: str, sequence, config, args: argparse.Namespace,
               track_sequence) -> dict:
     """One row: the sequence tracked with one configuration; a run that fails gives a row
     with its error (one broken run must not lose the rest of the table)."""
+    method = {"method": name} if name in METHODS else {}
     try:
+        if method:
+            check_method(name, sequence)
         report, _ = track_sequence(sequence, config, args.threaded, args.max_frames,
-                                   quiet=True, paced=args.paced)
+                                   quiet=True, paced=args.paced, **method)
     except Exception as exc:
         return {"sequence": seq_name, "config": name,
                 "error": f"{type(exc).__name__}: {exc}"}
@@ -176,11 +194,14 @@ def config_names(text: str) -> list[str]:
     for item in (c.strip() for c in text.split(",")):
         if item == "all":
             names.extend(CONFIGS)
+        elif item in METHODS and item != "sdvl":
+            names.append(item)
         elif item in CONFIGS or item.lower() in by_thesis:
             names.append(by_thesis.get(item.lower(), item))
         elif item:
             raise InputError(f"unknown configuration {item} (known: all, "
-                             f"{', '.join(CONFIGS)}, Config1..Config8)")
+                             f"{', '.join(CONFIGS)}, Config1..Config8, "
+                             f"{', '.join(m for m in METHODS if m != 'sdvl')})")
     if not names:
         raise InputError("no configuration given")
     return list(dict.fromkeys(names))
@@ -202,7 +223,8 @@ def base_parameters(sequence: str) -> dict:
 def table_row(sequence: str, config: str, report: dict) -> dict:
     """The table's numbers from a `sdvl track` report."""
     stages = report["stages"]
-    return {"sequence": sequence, "config": config, "thesis": THESIS_NAMES[config],
+    return {"sequence": sequence, "config": config, "thesis": THESIS_NAMES.get(config, "-"),
+            "align": alignment(config) if config in METHODS else "sim3",
             "frames": report["frames"], "tracked": report["tracked"],
             "segments": report["segments"], "ate_rmse_m": report["ate_rmse_m"],
             "longest_segment_ate_rmse_m": report["longest_segment_ate_rmse_m"],
@@ -221,7 +243,7 @@ def format_row(r: dict) -> str:
     """One line of the text table: ATE over all segments (several segments are only
     indicative, each having its own scale), tracking median and p95 ms, mapping median and
     mean ms."""
-    label = f"{r['config']} ({THESIS_NAMES[r['config']]})"
+    label = f"{r['config']} ({THESIS_NAMES.get(r['config'], r.get('align', '').upper() + ' ATE')})"
     if "error" in r:
         return f"{r['sequence']:<26} {label:<22} failed: {r['error']}"
 

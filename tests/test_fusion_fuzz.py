@@ -19,7 +19,9 @@ FLIGHT = fh.simulate(truth=fh.survey_flight(climb_m=3.0, leg_m=6.0, legs=1), see
 FIELDS = {"ATTITUDE": ("roll", "pitch", "yaw", "time_boot_ms"),
           "SCALED_IMU": ("xacc", "zacc", "time_boot_ms"),
           "DISTANCE_SENSOR": ("current_distance", "time_boot_ms"),
-          "SCALED_PRESSURE": ("press_abs", "time_boot_ms")}
+          "SCALED_PRESSURE": ("press_abs", "time_boot_ms"),
+          "HEARTBEAT": ("base_mode", "autopilot", "type"),
+          "EXTENDED_SYS_STATE": ("landed_state",)}
 BAD = [math.nan, math.inf, -math.inf, 1e12, -1e12, 0.0, 32767, -32768, 2**32 - 1]
 
 

@@ -31,16 +31,16 @@ def test_bad_seed_lists_say_what_is_wrong(text):
 def test_summary_averages_nees_over_runs_and_keeps_the_worst():
     reports = [{"ate_rmse_m": 0.1, "ate_pct_distance": 0.2, "velocity_rmse_m_s": 0.03,
                 "heading_max_deg": 1.5, "heading_frame_max_deg": 0.1,
-                "publish_after_takeoff_s": 1.0,
+                "aligned_after_takeoff_s": 1.0, "overconfident_fraction": 0.0,
                 "tracked_fraction": 0.98, "nees_position": 0.3, "nees_velocity": 0.4},
                {"ate_rmse_m": 0.3, "ate_pct_distance": 0.4, "velocity_rmse_m_s": 0.05,
                 "heading_max_deg": 0.5, "heading_frame_max_deg": 0.2,
-                "publish_after_takeoff_s": None,
+                "aligned_after_takeoff_s": None, "overconfident_fraction": None,
                 "tracked_fraction": 0.95, "nees_position": 1.5, "nees_velocity": None}]
     s = summarize(reports)
     assert s["runs"] == 2
     assert s["ate_rmse_m_mean"] == pytest.approx(0.2) and s["ate_rmse_m_max"] == 0.3
-    assert s["heading_max_deg_max"] == 1.5 and s["publish_after_takeoff_s_max"] == 1.0
+    assert s["heading_max_deg_max"] == 1.5 and s["aligned_after_takeoff_s_max"] == 1.0
     assert s["heading_frame_max_deg_max"] == 0.2
     assert s["tracked_fraction_min"] == 0.95
     assert s["anees_position"] == pytest.approx(0.9)

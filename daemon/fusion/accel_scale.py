@@ -3,8 +3,8 @@ accelerometer's, over short windows of one map segment (the linear alignment tha
 systems start from).
 
 The EKF linearises around its current scale. Starting from the wide prior (no rangefinder, say
-7x off), its first fixes land far off and its covariance shrinks before the estimate gets there:
-on survey-down without a rangefinder it published a scale 24 % low, sure to 3 %. Within a window
+7x off), its first fixes land far off and its covariance shrinks before the estimate gets there,
+a biased scale it is sure of. Within a window
 starting at time 0, the vehicle's displacement is v0 t + P(t), with P the double integral of the
 IMU's acceleration in N, and the map's displacement m(t) (tracker units, in N) over the scale is
 the same displacement: m(t) = (v0 t + P(t) - b t^2 / 2) / s + c, with c the map's error at the

@@ -1,4 +1,4 @@
-"""When the estimate may be published: scale and heading of the current map converged.
+"""When the current map is aligned: its scale and heading have converged.
 
 The filter's standard deviations of ln(scale) (relative scale error) and of the heading part of
 the alignment are compared with the configured limits. Publication starts once both have been
@@ -39,7 +39,7 @@ class AlignmentGate:
                 float(np.degrees(np.sqrt(heading_var))))
 
     def update(self, f: NavFilter, t: float) -> bool:
-        """True when estimates at time t may be published."""
+        """True when the map is aligned at time t."""
         cfg = self.cfg
         scale_std, heading_std = self.spreads(f)
         if not (math.isfinite(scale_std) and math.isfinite(heading_std)):

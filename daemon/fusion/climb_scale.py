@@ -2,10 +2,10 @@
 barometer's altitude change.
 
 Without an IMU or a rangefinder the filter starts from the wide scale prior, and its first
-linearised fixes land far off (about 9x on hover-down), so the barometer's climb then fails its
-gate and nothing is published. A straight-line fit of -altitude = scale * z + c, with z the
-tracker's camera height in its own units along N's down axis, needs no linearisation; once the
-fitted climb reaches `climb_scale_min_m` it gives the scale to a few percent.
+linearised fixes land far off, so the barometer's climb then fails its gate. A straight-line fit
+of -altitude = scale * z + c, with z the tracker's camera height in its own units along N's down
+axis, needs no linearisation; once the fitted climb reaches `climb_scale_min_m` it gives the
+scale to a few percent.
 """
 
 from __future__ import annotations

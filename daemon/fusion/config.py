@@ -23,52 +23,54 @@ class FusionConfig:
     camera_x_m: float = 0.0
     camera_y_m: float = 0.0
     camera_z_m: float = 0.0
-    # publication gate: scale and heading standard deviations below these, for min_aligned_s
+    # estimates go out from the autopilot's first ATTITUDE on, with the filter's covariance
+    # (the autopilot's VisOdom pre-arm check needs them before take-off); none while the
+    # horizontal position std is above this (the filter no longer knows where the vehicle is)
+    publish_max_std_m: float = 10.0
+    # the map counts as aligned (STATUSTEXT, and the scale fits stop) once scale and heading
+    # standard deviations have been below these for min_aligned_s
     scale_std_max: float = 0.03  # relative (0.03 = 3 %)
     heading_std_max_deg: float = 2.0
     min_aligned_s: float = 0.5
     progress_interval_s: float = 2.0
+    # standing still (rest.py): zero velocity fused with this std while the autopilot says it
+    # is landed, or it is disarmed and its IMU has been quiet for rest_window_s (specific force
+    # within rest_accel_tol of g, rates below rest_gyro_tol); flight states older than
+    # flight_state_timeout_s are not used
+    rest_velocity_std: float = 0.01  # m/s
+    rest_window_s: float = 0.5
+    rest_accel_tol: float = 0.3  # m/s^2
+    rest_gyro_tol: float = 0.03  # rad/s
+    flight_state_timeout_s: float = 3.0
     # priors of a new map segment
     scale_prior_std: float = 2.0  # of ln(scale): 2.0 lets the scale be 7x off either way
     initial_scale: float = 1.0  # metres per VO unit guessed for the first segment
     # the tracker scales a new map so that its median scene depth is this many units (vo's
-    # init_map_depth): with a downward camera the rangefinder's distance then gives the map's
-    # scale to within range_scale_prior_std (ln), so the filter starts near it instead of up to
-    # 7x off, where its linearisation made the scale of survey-down 30 % low and sure of it
+    # init_map_depth): a downward rangefinder's distance then gives the scale to within
+    # range_scale_prior_std (ln), a start the EKF's linearisation does not run away from
     map_depth_units: float = 1.0
     range_scale_prior_std: float = 0.3
-    # vehicle speed when tracking starts: a take-off starts still, a flight that starts tracking
-    # on the way does not (a tight prior there biases the first scale)
+    # speed std when the filter starts on a vehicle that may be moving (a restart in flight)
     start_velocity_std: float = 3.0  # m/s
     # while the std of ln(scale) is above coarse_scale_std the tracker's horizontal noise is
-    # inflated by coarse_inflation (variance factor): without a climb the scale comes from the
-    # IMU, the EKF linearises around a scale still far off, and full-weight updates shrink the
-    # covariance before the estimate gets there (a biased, overconfident scale: 14 % low on
-    # survey-down with the real tracker, 2 % with this); a climb's vertical rows keep full weight
+    # inflated by coarse_inflation (variance factor), so updates linearised around a scale still
+    # far off do not shrink the covariance before the estimate gets there
     coarse_scale_std: float = 0.2
     coarse_inflation: float = 10.0
     # tracker pose: floor of the position noise (metres) and inflation per tracking quality
     vo_position_std_m: float = 0.005
     vo_rotation_std_deg: float = 0.2
-    # variance factor on the tracker's position covariance: it matches its frame-to-frame noise
-    # (hover-down: reported 15/14/4 mm, frame differences 9/6/1.5 mm; survey-down 27/27/12 vs
-    # 21/12/7 mm); what it leaves out, the slow tilt error and drift, is modelled below
+    # variance factor on the tracker's position covariance (it matches its frame-to-frame noise;
+    # the slow tilt error and drift it leaves out are modelled below)
     vo_covariance_factor: float = 1.0
     # its slowly wandering tilt error and the position error that goes with it (state.py): std
-    # and correlation time; the tracker on the synthetic downward flights shows 0.2-0.5 deg rms
-    # with an autocorrelation of 0.4 after 1 s (the older tracker: 1.3-2.9 deg)
+    # and correlation time, as the tracker shows on the synthetic downward flights
     vo_tilt_error_std_deg: float = 0.5
     vo_error_time_s: float = 1.0
     # VO position random walk per sqrt(metre flown horizontally), and sideways per sqrt(metre
-    # climbed or descended): over the same ground a climb re-triangulates the scene at new
-    # depths and the camera's place over it wanders (hover-down seed 8: 6 cm east over a 2.2 m
-    # climb; seed 6: 0.29 m at 4.5 m, NEES 24.5 without this term). Calibrated with the scene
-    # height's noise and the rotation floor by the position NEES per dof (heading frame,
-    # lockstep replays, all sensors, seeds 0-9): survey-down 0.38-1.62 (mean 0.83), hover-down
-    # 0.17-2.42 (mean 0.84); without the IMU survey-down 0.26-2.29 (mean 0.69). Before (0.005,
-    # no climb term, 0.3 m relief): survey-down 0.16-0.84, hover-down seeds 6/8 24.5/3.5. Real
-    # imagery may drift more: raise them when a flight's NEES (or the autopilot's innovations)
-    # says so
+    # climbed or descended (a climb re-triangulates the scene at new depths); set by the
+    # position NEES of the lockstep replays (RESULTS.md fusion-*); real imagery may drift more:
+    # raise them when a flight's NEES or the autopilot's innovations say so
     vo_drift_m_per_sqrt_m: float = 0.002
     vo_drift_climb_m_per_sqrt_m: float = 0.03
     vo_drift_m_per_sqrt_s: float = 0.0  # VO position random walk per sqrt(second), also at rest
@@ -78,27 +80,23 @@ class FusionConfig:
     # autopilot attitude (ATTITUDE): roll/pitch and compass heading noise
     attitude_std_deg: float = 0.5
     heading_std_deg: float = 3.0
-    # compass bias: averaging cannot remove it. It turns the local frame (north is the
-    # compass's) against true north, so it is in the publication gate's heading std, not in
-    # the covariance sent (the autopilot fuses our poses in its own heading frame)
+    # compass bias: it turns the local frame (north is the compass's) against true north, so it
+    # is in the alignment gate's heading std, not in the covariance sent (the autopilot fuses
+    # our poses in its own heading frame)
     heading_bias_std_deg: float = 1.0
     attitude_timeout_s: float = 0.5
     # VO rotation drift against the autopilot's, per sqrt(metre flown) like the scale's
     alignment_walk_deg_per_sqrt_m: float = 0.1
     # ln(scale) random walk per sqrt(metre flown): the map's scale drifts as it grows over new
-    # ground, not while the camera hovers over the same points (per second, it made the scale
-    # times the height climbed the largest term of a hover's covariance: 0.05 m against errors of
-    # 0.01 m on hover-down); survey-down's map keeps its scale within 0.002 per
-    # sqrt(metre) (Sim(3) fits of 12 m windows)
+    # ground, not while the camera hovers over the same points
     scale_walk_per_sqrt_m: float = 0.002
     # per sqrt(metre climbed or descended): the scene depth changes and new points are
-    # triangulated at it (hover-down's map: 4 % between 1.5 and 6 m, 12 m windows of survey-down
-    # 0.2 %); held to 0.002 the IMU and baro fixed the climb's scale 6 % off, sure to 0.7 %
+    # triangulated at it, so a climb moves the scale more than level flight does
     scale_walk_climb_per_sqrt_m: float = 0.02
     # IMU (HIGHRES_IMU / SCALED_IMU / RAW_IMU): accelerometer noise and bias
     use_imu: bool = True
-    # m/s^2/sqrt(Hz) white noise, includes attitude error times g (0.2 deg at 50 Hz: 0.005);
-    # raise it on a frame whose vibration reaches the accelerometer
+    # m/s^2/sqrt(Hz) white noise, the attitude's error times g included; raise it on a frame
+    # whose vibration reaches the accelerometer
     accel_noise: float = 0.02
     accel_bias_std: float = 0.2  # m/s^2 initial
     accel_bias_walk: float = 0.003  # m/s^2 per sqrt(s)
@@ -117,9 +115,7 @@ class FusionConfig:
     # The ground the map sees differs from the one under the rangefinder by the spread of the
     # matched points' heights, at least terrain_relief_m (std), a new sample every
     # terrain_correlation_m flown; the median's own noise is scene_height_std_fraction of the
-    # height. On survey-down the points' spread is 0.1-0.6 % of the height over open ground and
-    # 7 % over buildings (10th/90th percentiles); with a floor of 0.3 m and 2 % these
-    # innovations were 0.02-0.2 of their predicted variance
+    # height
     use_scene_height: bool = True
     terrain_relief_m: float = 0.05
     terrain_correlation_m: float = 10.0
@@ -130,8 +126,8 @@ class FusionConfig:
     baro_walk_m_per_sqrt_s: float = 0.02
     # while the filter does not know the scale (no rangefinder, no IMU fix yet), it is taken
     # from a least-squares fit of the tracker's height against the barometer's altitude once
-    # the barometer has seen this much climb (climb_scale.py): without it a barometer-only
-    # take-off published nothing (the wide prior's first fix landed about 9x off)
+    # the barometer has seen this much climb (climb_scale.py), not from the wide prior's
+    # linearised fixes
     climb_scale_min_m: float = 1.0
     # outlier rejection: chi-square gate per measurement (99.9 % for 1, 3, 6 dof: 10.8, 16.3, 22.5)
     gate_chi2_1dof: float = 10.8
@@ -148,6 +144,8 @@ class FusionConfig:
     def check(self, path: Path | None = None) -> None:
         """InputError naming the first setting that makes no sense (in config file `path`)."""
         positive = ("scale_std_max", "heading_std_max_deg", "progress_interval_s",
+                    "publish_max_std_m", "rest_velocity_std", "rest_window_s", "rest_accel_tol",
+                    "rest_gyro_tol", "flight_state_timeout_s",
                     "scale_prior_std", "initial_scale", "start_velocity_std",
                     "map_depth_units", "range_scale_prior_std",
                     "coarse_scale_std", "vo_position_std_m",

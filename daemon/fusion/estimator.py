@@ -3,21 +3,32 @@
 Autopilot messages are queued as they arrive (asyncio thread) with their arrival time; each
 tracker frame (tracking thread) maps their stamps to our clock, applies everything up to the
 frame's capture time in time order (replaying the filter for late ones), fuses the frame and
-returns an estimate once scale and heading have converged.
+returns an estimate.
 
-Local frame: NED with the origin at the vehicle's position at the first tracked frame; heading
-from the autopilot's attitude (compass), so it agrees with the autopilot's own yaw.
+The filter starts with the autopilot's first ATTITUDE, once it can tell whether the vehicle
+stands still (rest.py), and from then on every frame gives an estimate with the filter's
+covariance, before the map exists too: standing on the ground the vehicle is where it started
+(zero velocity fused), in a climb before the map the IMU and barometer carry it and the
+covariance grows, and while the map's scale is unknown the covariance carries that. So the
+autopilot hears from us from power-on (its VisOdom pre-arm check needs that) and never hears a
+position surer than the filter is.
+
+Local frame: NED with the origin at the vehicle's position when the filter starts, at the height
+the autopilot itself reports then (LOCAL_POSITION_NED), so the autopilot's height does not step
+when it starts using ours; heading from the autopilot's attitude (compass), so it agrees with
+the autopilot's own yaw. reset_counter changes only when an estimate jumps from the last one
+further than both covariances allow (output.Continuity).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -28,49 +39,28 @@ from daemon.fusion.alignment import AlignmentGate
 from daemon.fusion.attitude import AttitudeTrack
 from daemon.fusion.clock import ClockMap
 from daemon.fusion.config import FusionConfig
-from daemon.fusion.output import build_estimate, inflation
-from daemon.fusion.sensors import BARO_PRIORITY, IMU_PRIORITY, Attitude, Baro, Imu, Range, parse
-from daemon.fusion.state import ANCHOR, LOG_SCALE, POS, NavFilter
+from daemon.fusion.map_fusion import FrameInput, MapFusion, Readings, frame_input
+from daemon.fusion.output import Continuity, attitude_noise, build_estimate, horizontal_std
+from daemon.fusion.rest import RestDetector
+from daemon.fusion.sensors import (
+    BARO_PRIORITY,
+    IMU_PRIORITY,
+    Attitude,
+    Baro,
+    Imu,
+    LocalPosition,
+    Range,
+    flight_states,
+    parse,
+)
+from daemon.fusion.state import THETA, NavFilter
 from daemon.fusion.timeline import Event, Timeline
 from daemon.mounting import body_from_camera
-from vo.pose_optimizer import MAD_TO_SIGMA
 
 log = logging.getLogger("sdvl.fusion")
 INBOX_LIMIT = 20_000
-TRACKED = ("good", "insufficient", "bad")
-RANGE_FRESH_S = 0.5  # a rangefinder reading this close to a frame measures its height
-MIN_SCENE_POINTS = 20  # matched map points for a median height
-
-
-@dataclass(frozen=True)
-class FrameInput:
-    """What the filter uses of a tracker frame."""
-
-    p_w: np.ndarray  # camera position in the tracker's world
-    R_w_b: np.ndarray  # body attitude in the tracker's world
-    cov: np.ndarray  # 6x6 position (tracker units) and rotation (rad), tracker world frame
-    quality: str
-    segment: int
-    scene_w: np.ndarray | None = None  # matched map points, tracker world (scene.py)
-
-
-def _frame_input(result: object, R_c_b: np.ndarray, segment: int,
-                 position_factor: float = 1.0) -> FrameInput | None:
-    """The tracker pose as filter input, its position variances times `position_factor`
-    (correlations kept); None when it has no usable pose."""
-    if not result.has_pose or result.quality not in TRACKED:
-        return None
-    T = np.asarray(result.T_w_c, dtype=np.float64)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        return None
-    cov = np.zeros((6, 6))
-    if result.covariance is not None:
-        given = np.asarray(result.covariance, dtype=np.float64)
-        if given.shape == (6, 6) and np.all(np.isfinite(given)) and np.all(np.diag(given) >= 0):
-            cov = 0.5 * (given + given.T)
-    stretch = np.diag([np.sqrt(position_factor)] * 3 + [1.0] * 3)
-    return FrameInput(T[:3, 3].copy(), T[:3, :3] @ R_c_b, stretch @ cov @ stretch,
-                      result.quality, segment, getattr(result, "scene_w", None))
+UNDECIDED_START_S = 2.0  # start moving (velocity unknown) if rest is still undecided by then
+HEIGHT_FRESH_S = 1.0  # the autopilot's own height this close to the start sets ours
 
 
 class FusionEstimator:
@@ -92,16 +82,20 @@ class FusionEstimator:
         self.sources: dict[str, str] = {}  # "imu"/"baro" -> the message type fused
         self.dropped_stamps = 0
         self._inbox: deque[tuple[float, object]] = deque(maxlen=INBOX_LIMIT)
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # the inbox, between the link's thread and ours
+        self._filter_lock = threading.Lock()  # the filter, between frames and bridges
+        self.first_aligned_s: float | None = None  # when a map's scale first converged
+        self.rest = RestDetector(cfg)
+        self.continuity = Continuity(cfg.gate_chi2_3dof)
         self._segment = 0
-        self._had_segment = False
-        self._realigns_seen = 0
-        self._origin_t: float | None = None  # capture time of the first estimate sent
+        self._first_attitude_t: float | None = None
+        self._autopilot_z: tuple[float, float] | None = None  # (t, NED z) it reports
         self._last_frame_t = float("-inf")
-        self._range: tuple[float, float] | None = None  # (t, distance) of the newest reading
-        self._baro: tuple[float, float] | None = None  # (t, altitude) of the newest reading
+        self.readings = Readings()
         optical_axis = self.R_c_b.T[:, 2]  # in body FRD
-        self._camera_down = optical_axis[2] >= np.cos(np.radians(cfg.range_max_tilt_deg))
+        camera_down = optical_axis[2] >= np.cos(np.radians(cfg.range_max_tilt_deg))
+        self.maps = MapFusion(cfg, self.filter, self.attitude, self.gate, self.readings,
+                              self._imu_fresh, camera_down)
 
     # --- the Estimator protocol ---------------------------------------------------------------
 
@@ -116,44 +110,112 @@ class FusionEstimator:
             self.clock.set_offset(offset_s)
 
     def on_frame(self, result: object, t_capture: float) -> VisionEstimate | None:
-        """Fuse one tracker FrameResult captured at `t_capture` (our monotonic seconds)."""
+        """Fuse one tracker FrameResult captured at `t_capture` (our monotonic seconds); the
+        estimate to send for that moment, or None."""
+        with self._filter_lock:
+            return self._on_frame(result, t_capture)
+
+    def bridge(self, t: float) -> VisionEstimate | None:
+        """An estimate for time t when no frame has come for a while (the tracker is busy, the
+        camera stalled), so the autopilot does not go without: the filter carried to t on the
+        IMU samples since its last frame, in a copy (the next frame continues from the filter
+        itself), with the covariance that grew meanwhile. None without a fresh IMU (nothing
+        real would carry it), before the filter started, or when it would be no news."""
+        with self._filter_lock:
+            self._drain()
+            f = self.filter
+            if f.t is None or t <= max(f.t, self._last_frame_t):
+                return None
+            carried = NavFilter(self.cfg)
+            carried.restore(f.snapshot())
+            for event in self.timeline.pending:
+                if event.kind == "imu" and event.t <= t:
+                    self._propagate(event.t, carried)
+                    carried.accel, carried.t_accel = event.data.accel, event.t
+            self._propagate(t, carried)
+            att = self.attitude.at(t) or self.attitude.latest
+            if att is None or not self._imu_fresh(t, carried):
+                return None
+            estimate = build_estimate(
+                carried, self.cfg, R_l_b=att.R_n_b, rot_cov=attitude_noise(self.cfg, "good"),
+                rates=att.rates, t_capture=t, t_source=math.nan, state="good",
+                reset_counter=self.reset_counter)
+            if estimate is None or horizontal_std(carried) > self.cfg.publish_max_std_m:
+                return None
+            if self.continuity.jumped(estimate):
+                self._bump_reset_counter()
+                estimate = dataclasses.replace(estimate, reset_counter=self.reset_counter)
+            return estimate
+
+    def _on_frame(self, result: object, t_capture: float) -> VisionEstimate | None:
         self._drain()
-        if result.new_segment and self._had_segment:
+        if result.new_segment:
             self._segment += 1
-            self._bump_reset_counter()
-        frame = _frame_input(result, self.R_c_b, self._segment, self.cfg.vo_covariance_factor)
+        frame = frame_input(result, self.R_c_b, self._segment, self.cfg.vo_covariance_factor)
         if not np.isfinite(t_capture) or t_capture <= self._last_frame_t:
             return None
         self._last_frame_t = t_capture
-        if frame is not None:
-            self._had_segment = True
-            self.timeline.add(t_capture, "frame", frame)
+        self.timeline.add(t_capture, "frame", frame)  # None: no pose, the filter moves on
         f = self.filter
         self.timeline.run(t_capture, f.t, self._apply, f.restore, f.snapshot)
-        if f.realigns != self._realigns_seen:
-            self._realigns_seen = f.realigns
-            self._bump_reset_counter()
-        if frame is None or f.t != t_capture or f.segment != frame.segment:
+        if f.t != t_capture:
+            self._say_why_not_started(t_capture)
             return None
-        if not self.gate.update(f, t_capture):
-            return None
-        f.published = True
-        if f.origin is None:  # a rewind to this frame or before must keep the fix
-            self._origin_t = t_capture
-            f.fix_origin()
-            self.timeline.retake(t_capture, f.snapshot())
+        tracked = frame is not None and f.segment == frame.segment
+        if tracked and self.gate.update(f, t_capture):
+            f.converged = True
+            self.first_aligned_s = self.first_aligned_s or t_capture
+        return self._estimate(result, frame if tracked else None, t_capture)
+
+    def _estimate(self, result: object, frame: FrameInput | None,
+                  t_capture: float) -> VisionEstimate | None:
+        """The estimate at the filter's time: attitude from the map when this frame was fused,
+        else the autopilot's; None while the filter does not know where the vehicle is."""
+        f, cfg = self.filter, self.cfg
         att = self.attitude.at(t_capture)
-        return build_estimate(
-            f, self.cfg, R_w_b=frame.R_w_b, rot_cov_w=frame.cov[3:, 3:],
+        if frame is not None:
+            R_l_b = f.R_nom @ frame.R_w_b
+            rot_cov = f.P[THETA, THETA] + f.R_nom @ frame.cov[3:, 3:] @ f.R_nom.T
+        elif att is not None:
+            R_l_b, rot_cov = att.R_n_b, attitude_noise(cfg, result.quality)
+        else:
+            return None
+        if not self._known(t_capture):
+            self.continuity.last = None
+            return None
+        estimate = build_estimate(
+            f, cfg, R_l_b=R_l_b, rot_cov=rot_cov,
             rates=att.rates if att is not None else np.zeros(3), t_capture=t_capture,
             t_source=float(result.t), state=result.quality, reset_counter=self.reset_counter)
+        if estimate is not None and self.continuity.jumped(estimate):
+            self._bump_reset_counter()
+            estimate = dataclasses.replace(estimate, reset_counter=self.reset_counter)
+        return estimate
+
+    def _known(self, t: float) -> bool:
+        """Whether the filter knows where the vehicle is well enough to say so: its horizontal
+        std below publish_max_std_m, and something real behind the position: the IMU, standing
+        still, or a map whose scale has converged (without an IMU a constant-velocity guess
+        carries the filter between map updates, and a map of unknown scale with it makes
+        positions surer than they are)."""
+        f = self.filter
+        if horizontal_std(f) > self.cfg.publish_max_std_m:
+            self.gate.waiting("position unknown: nothing sent", t)
+            return False
+        if self._imu_fresh(t) or f.converged or self.rest.at_rest(t):
+            return True
+        self.gate.waiting("no IMU and the map not aligned: nothing sent", t)
+        return False
+
+    def _say_why_not_started(self, t: float) -> None:
+        if self.attitude.latest is None:
+            self.gate.waiting("waiting for the autopilot's ATTITUDE", t)
 
     # --- inputs -------------------------------------------------------------------------------
 
     def _bump_reset_counter(self) -> None:
         self.reset_counter = (self.reset_counter + 1) % 256
-        self.gate.restart()
-        log.info("fusion: discontinuity, reset_counter %d", self.reset_counter)
+        log.info("fusion: the estimate jumped, reset_counter %d", self.reset_counter)
 
     def _drain(self) -> None:
         """Autopilot messages -> attitude track and timeline events on our clock."""
@@ -164,6 +226,11 @@ class FusionEstimator:
                 self._ingest(arrival, msg)
 
     def _ingest(self, arrival: float, msg: object) -> None:
+        states = flight_states(msg)
+        for kind, value in states:  # unstamped: their arrival time is close enough
+            (self.rest.on_landed if kind == "landed" else self.rest.on_armed)(arrival, value)
+        if states:
+            return
         parsed = parse(msg)
         if parsed is None:
             return
@@ -176,9 +243,13 @@ class FusionEstimator:
             sample = dataclasses.replace(sample, t=t)
             if isinstance(sample, Attitude):
                 self.attitude.add(sample)
+                self.rest.on_rates(t, sample.rates)
                 self.timeline.add(t, "attitude", None)  # late ones replay what used it
             elif isinstance(sample, Imu) and self.cfg.use_imu:
+                self.rest.on_imu(t, sample.accel)
                 self._add_stream("imu", sample, IMU_PRIORITY)
+            elif isinstance(sample, LocalPosition):
+                self._autopilot_z = (t, float(sample.position[2]))
             elif isinstance(sample, Range) and self.cfg.use_rangefinder:
                 self.timeline.add(t, "range", sample)
             elif isinstance(sample, Baro) and self.cfg.use_baro:
@@ -201,10 +272,14 @@ class FusionEstimator:
             self._apply_frame(event.t, event.data)
             return
         if event.kind == "range":
-            self._range = (event.t, event.data.distance)
+            self.readings.range = (event.t, event.data.distance)
         elif event.kind == "baro":
-            self._baro = (event.t, event.data.altitude)
-        if f.t is None or event.kind == "attitude":
+            self.readings.baro = (event.t, event.data.altitude)
+        if f.t is None:
+            if event.kind == "attitude":
+                self._start(event.t)
+            return
+        if event.kind == "attitude":
             return
         self._propagate(event.t)
         if event.kind == "imu":
@@ -216,136 +291,41 @@ class FusionEstimator:
         elif event.kind == "baro":
             m.update_baro(f, event.data.altitude)
 
-    def _imu_fresh(self, t: float) -> bool:
-        f = self.filter
+    def _imu_fresh(self, t: float, nav: NavFilter | None = None) -> bool:
+        f = nav or self.filter
         return f.accel is not None and t - f.t_accel <= self.cfg.imu_timeout_s
 
-    def _propagate(self, t: float) -> None:
-        f = self.filter
-        att = self.attitude.at(f.t) if self._imu_fresh(t) else None
+    def _propagate(self, t: float, nav: NavFilter | None = None) -> None:
+        """Carry the filter (or `nav`, a copy) to time t on the IMU, or at constant velocity."""
+        f = nav or self.filter
+        att = self.attitude.at(f.t) if self._imu_fresh(t, f) else None
         f.predict(t, f.accel if att is not None else None,
                   att.R_n_b if att is not None else None)
 
-    def _apply_frame(self, t: float, frame: FrameInput) -> None:
-        self._fuse_frame(t, frame)
-        if t == self._origin_t and self.filter.origin is None:
-            self.filter.fix_origin()
+    def _start(self, t: float) -> None:
+        """Start the filter at time t once rest or motion can be told (or the wait is over):
+        at the autopilot's own height when it reports one."""
+        if self._first_attitude_t is None:
+            self._first_attitude_t = t
+        still = self.rest.state(t)
+        if still is None and t - self._first_attitude_t < UNDECIDED_START_S:
+            return
+        cfg = self.cfg
+        height = (self._autopilot_z[1] if self._autopilot_z is not None
+                  and abs(t - self._autopilot_z[0]) <= HEIGHT_FRESH_S else 0.0)
+        self.filter.start(t, cfg.rest_velocity_std if still else cfg.start_velocity_std, height)
+        log.info("fusion: started %s, height %.2f m (NED z %s)",
+                 "standing still" if still else "moving", -height,
+                 "from the autopilot" if self._autopilot_z is not None else "0")
 
-    def _fuse_frame(self, t: float, frame: FrameInput) -> None:
+    def _apply_frame(self, t: float, frame: FrameInput | None) -> None:
+        """A frame's time: propagate, fuse zero velocity when standing still, fuse the
+        tracker's pose when it has one."""
         f = self.filter
-        att = self.attitude.at(t)
         if f.t is None:
-            if att is None:
-                self.gate.waiting("waiting for the autopilot's ATTITUDE", t)
-                return
-            f.start(t, self.cfg.start_velocity_std)
+            return
         self._propagate(t)
-        if f.segment != frame.segment:
-            if att is None:
-                return
-            f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, *self._scale_prior(t))
-            f.segment = frame.segment
-            return
-        self._climb_scale(t, frame, att)
-        self._accel_scale(t, frame, att)
-        factor = inflation(self.cfg, frame.quality)
-        coarse = (self.cfg.coarse_inflation
-                  if np.sqrt(f.P[LOG_SCALE, LOG_SCALE]) > self.cfg.coarse_scale_std else 1.0)
-        R_n_b = f.R_nom @ frame.R_w_b
-        attitude = (None if att is None
-                    else (att.R_n_b, frame.R_w_b, self._attitude_noise(frame.quality)))
-        if m.update_vo(f, frame.p_w, frame.cov, R_n_b, factor, self._imu_fresh(t), attitude,
-                       coarse):
-            if np.linalg.norm(f.x[POS] - f.x[ANCHOR]) > self.cfg.reanchor_distance_m:
-                f.reanchor(frame.p_w)
-            self._scene_height(t, frame, R_n_b)
-        elif f.rejections["vo"] >= self.cfg.reset_after_rejections and att is not None:
-            if f.published:
-                f.realigns += 1  # the autopilot saw this map: reset_counter must change
-            # the same map: its scale holds, only where it puts the camera now is re-anchored
-            f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, f.x[LOG_SCALE],
-                            float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE])))
-            f.rejections["vo"] = 0
-        if f.scale_source == "prior":
-            f.forget_scale()
-
-    def _climb_scale(self, t: float, frame: FrameInput, att: object) -> None:
-        """Pair the tracker's height with the barometer's; while the filter does not know the
-        scale from elsewhere (std above coarse_scale_std, or no IMU) and has not published, take
-        it from their fit over the climb when that is surer (climb_scale.py)."""
-        f, cfg = self.filter, self.cfg
-        if self._baro is None or abs(t - self._baro[0]) > RANGE_FRESH_S:
-            return
-        f.climb.add(float((f.R_nom @ (frame.p_w - f.p_w0))[2]), *self._baro)
-        std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
-        if att is None or f.published or (std <= cfg.coarse_scale_std and self._imu_fresh(t)):
-            return
-        fit = f.climb.fit(cfg.climb_scale_min_m, cfg.baro_std_m)
-        if fit is not None:  # the map's own scale wanders over the climb (its walk, halved)
-            fit = (fit[0], float(np.hypot(fit[1], 0.5 * cfg.scale_walk_climb_per_sqrt_m
-                                          * np.sqrt(f.climb.climb_m(fit[0])))))
-        if fit is not None and fit[1] < std:
-            log.info("fusion: scale %.3g m/unit from the climb (+-%.1f%%)", np.exp(fit[0]),
-                     100 * fit[1])
-            f.rescale(frame.p_w, att.R_n_b, *fit)
-
-    def _accel_scale(self, t: float, frame: FrameInput, att: object) -> None:
-        """Pair the map's position with the IMU's double integral; until the filter publishes,
-        take the scale from their linear fit (accel_scale.py) once that is good to
-        coarse_scale_std: when it is surer than a scale not given with the map (the wide prior,
-        or an earlier fit), or more than 3 sigma away from the filter's (its linearised scale
-        has run off while its covariance shrank)."""
-        f, cfg = self.filter, self.cfg
-        if f.published or not self._imu_fresh(t):
-            f.motion.interrupt()  # nothing left to fit, or no IMU to fit
-            return
-        f.motion.add_frame(t, frame.p_w, f.R_nom)
-        fit = f.motion.fit()
-        if att is None or fit is None or not fit[1] <= cfg.coarse_scale_std:
-            return
-        std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
-        surer = fit[1] < std and f.scale_source != "given"
-        if surer or abs(fit[0] - f.x[LOG_SCALE]) > 3.0 * np.hypot(fit[1], std):
-            log.info("fusion: scale %.3g m/unit from the IMU (+-%.1f%%), the filter had %.3g "
-                     "(+-%.1f%%)", np.exp(fit[0]), 100 * fit[1], f.scale, 100 * std)
-            f.rescale(frame.p_w, att.R_n_b, *fit)
-
-    def _scene_height(self, t: float, frame: FrameInput, R_n_b: np.ndarray) -> None:
-        """Fuse the map's height above the ground (its matched points' median depth along the
-        vertical) against the rangefinder's, once per terrain_correlation_m flown."""
-        f, cfg = self.filter, self.cfg
-        points = frame.scene_w
-        if not (cfg.use_scene_height and self._camera_down and f.has_ground
-                and points is not None and len(points) >= MIN_SCENE_POINTS
-                and self._range is not None and abs(t - self._range[0]) <= RANGE_FRESH_S):
-            return
-        if (f.scene_ne is not None
-                and np.linalg.norm(f.x[:2] - f.scene_ne) < cfg.terrain_correlation_m):
-            return
-        heights = (points - frame.p_w) @ f.R_nom[2]  # R_nom[2]: N's down
-        height = float(np.median(heights))
-        spread = MAD_TO_SIGMA * float(np.median(np.abs(heights - height)))
-        if height > 0 and np.isfinite(height) and m.update_scene(
-                f, np.log(height), float((R_n_b @ f.lever)[2]), spread / height):
-            f.scene_ne = f.x[:2].copy()
-
-    def _scale_prior(self, t: float) -> tuple[float, float | None]:
-        """ln(scale) and its std for a new map: from the rangefinder's distance when the camera
-        looks down and a reading is fresh (the map's median depth is map_depth_units), else the
-        last map's scale or the configured guess with the wide prior (None)."""
-        cfg = self.cfg
-        if (self._camera_down and self._range is not None
-                and abs(t - self._range[0]) <= RANGE_FRESH_S):
-            return float(np.log(self._range[1] / cfg.map_depth_units)), cfg.range_scale_prior_std
-        f = self.filter
-        return (float(f.x[LOG_SCALE]) if f.segment >= 0 else float(np.log(cfg.initial_scale)),
-                None)
-
-    def _attitude_noise(self, quality: str) -> np.ndarray:
-        """Covariance of the autopilot's attitude (compass heading noisier than the tilt) plus
-        a floor for the tracker's rotation (rad^2, N frame)."""
-        cfg = self.cfg
-        tilt, heading, vo = np.radians([cfg.attitude_std_deg, cfg.heading_std_deg,
-                                        cfg.vo_rotation_std_deg])
-        return np.diag([tilt**2, tilt**2, heading**2]) + np.eye(3) * vo**2 * inflation(
-            cfg, quality)
+        if self.rest.at_rest(t):
+            m.update_rest(f)
+        if frame is not None:
+            self.maps.fuse(t, frame)

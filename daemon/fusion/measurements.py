@@ -16,6 +16,7 @@ from daemon.fusion.state import (
     LOG_SCALE,
     POS,
     THETA,
+    VEL,
     VO_TILT,
     NavFilter,
     matrix_to_rotvec,
@@ -25,11 +26,11 @@ from daemon.fusion.state import (
 
 
 def gated_update(f: NavFilter, z: np.ndarray, h: np.ndarray, H: np.ndarray, R: np.ndarray,
-                 gate: float, frozen: tuple[int, slice] | None = None) -> bool:
+                 gate: float, frozen: np.ndarray | None = None) -> bool:
     """One EKF update with measurement z, prediction h, Jacobian H and noise R; False (and no
     change) when the innovation fails the chi-square gate or the result is not finite.
-    `frozen` = (state index, measurement rows): those rows must not change that state (a
-    Schmidt update: its gain is zeroed, the Joseph form keeps the covariance right)."""
+    `frozen` = a (states x measurement rows) mask of gains to zero: those rows must not change
+    those states (a Schmidt update; the Joseph form keeps the covariance right)."""
     S = H @ f.P @ H.T + R
     y = z - h
     try:
@@ -96,6 +97,16 @@ def tilt_coupling(cov_n: np.ndarray) -> np.ndarray:
         return np.zeros((3, 2))
 
 
+def _without_motion(rows: int, climbing: bool) -> np.ndarray:
+    """The gains a tracker update must not use without an IMU. Then nothing independent of the
+    map knows the horizontal motion (a constant-velocity model only echoes the map), so the map
+    cannot say where its anchor is or what its scale is: only the vertical row, against the
+    barometer or rangefinder, may move the anchor's height, and the scale in a climb."""
+    mask = np.zeros((DIM, rows), dtype=bool)
+    mask[LOG_SCALE, [i for i in range(rows) if not (i == 2 and climbing)]] = True
+    return mask
+
+
 def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarray,
               inflation: float, scale_from_motion: bool = True,
               attitude: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
@@ -133,8 +144,7 @@ def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarra
         R[:3, 3:] *= -1.0  # z_a carries minus the tracker's rotation error
         R[3:, :3] *= -1.0
         gate = f.cfg.gate_chi2_6dof
-    vertical = abs(u[2]) >= 1.0
-    frozen = None if scale_from_motion else (LOG_SCALE, slice(0, 2 if vertical else 3))
+    frozen = None if scale_from_motion else _without_motion(len(z), abs(u[2]) >= 1.0)
     ok = gated_update(f, z, h, H, R, gate, frozen)
     fold_alignment(f)
     f.rejections["vo"] = 0 if ok else f.rejections["vo"] + 1
@@ -191,3 +201,11 @@ def update_baro(f: NavFilter, altitude: float) -> bool:
     """Barometric altitude = baro offset - p_z."""
     return _scalar_update(f, "baro", altitude, BARO, f.cfg.baro_std_m)
 
+
+
+def update_rest(f: NavFilter) -> bool:
+    """The vehicle stands still (rest.py): zero velocity."""
+    H = np.zeros((3, DIM))
+    H[:, VEL] = np.eye(3)
+    R = np.eye(3) * f.cfg.rest_velocity_std**2
+    return gated_update(f, np.zeros(3), f.x[VEL].copy(), H, R, f.cfg.gate_chi2_3dof)

@@ -1,4 +1,5 @@
-"""The filter's state at a frame as a VisionEstimate: covariance, inflation, quality."""
+"""The filter's state at a frame as a VisionEstimate: covariance, inflation, quality, and the
+continuity check that decides when the autopilot must be told of a discontinuity."""
 
 from __future__ import annotations
 
@@ -6,15 +7,25 @@ import numpy as np
 
 from daemon.estimate import VisionEstimate
 from daemon.fusion.config import FusionConfig
-from daemon.fusion.state import POS, THETA, VEL, NavFilter
+from daemon.fusion.state import POS, VEL, NavFilter
 
 QUALITY_INFLATION_KEYS = {"insufficient": "inflate_insufficient", "bad": "inflate_bad"}
+JUMP_FLOOR_M = 0.02  # moves below this are never a discontinuity (a filter at rest is sure to mm)
 
 
 def inflation(cfg: FusionConfig, quality: str) -> float:
     """Variance factor for a tracking quality ('good' and unknown states: 1)."""
     key = QUALITY_INFLATION_KEYS.get(quality)
     return getattr(cfg, key) if key else 1.0
+
+
+def attitude_noise(cfg: FusionConfig, quality: str) -> np.ndarray:
+    """Covariance of the autopilot's attitude (compass heading noisier than the tilt) plus a
+    floor for the tracker's rotation (rad^2, N frame)."""
+    tilt, heading, vo = np.radians([cfg.attitude_std_deg, cfg.heading_std_deg,
+                                    cfg.vo_rotation_std_deg])
+    return (np.diag([tilt**2, tilt**2, heading**2])
+            + np.eye(3) * vo**2 * inflation(cfg, quality))
 
 
 def quality_percent(position_cov: np.ndarray, good_std_m: float) -> int:
@@ -26,22 +37,24 @@ def quality_percent(position_cov: np.ndarray, good_std_m: float) -> int:
     return int(np.clip(round(100.0 * good_std_m / max(std, good_std_m)), 1, 100))
 
 
-def build_estimate(f: NavFilter, cfg: FusionConfig, *, R_w_b: np.ndarray, rot_cov_w: np.ndarray,
+def horizontal_std(f: NavFilter) -> float:
+    """The position's standard deviation along its least certain horizontal direction."""
+    return float(np.sqrt(max(np.linalg.eigvalsh(f.P[:2, :2])[-1], 0.0)))
+
+
+def build_estimate(f: NavFilter, cfg: FusionConfig, *, R_l_b: np.ndarray, rot_cov: np.ndarray,
                    rates: np.ndarray, t_capture: float, t_source: float, state: str,
                    reset_counter: int) -> VisionEstimate | None:
-    """The estimate to send, or None if anything in it is not finite. Its covariance is the
+    """The estimate to send, or None if anything in it is not finite. `R_l_b` is the body's
+    attitude in the local frame and `rot_cov` its covariance there. The covariance is the
     filter's, with nothing added: the autopilots apply their own floors (VISO_POS_M_NSE,
-    EKF2_EVP_NOISE), and a floor here would make the covariance dishonest. It describes errors
-    in the local frame, whose north is the autopilot's compass north: the compass bias turns
-    that frame against true north, and the autopilot, fusing our poses in its own heading frame,
-    neither sees nor could use that (carried as position noise it grew with the distance from
-    the start, 0.5 m std at 30 m, and would have made the autopilot trust the poses less the
-    farther it flew)."""
-    R_l_b = f.R_nom @ R_w_b
+    EKF2_EVP_NOISE). It describes errors in the local frame, whose north is the autopilot's
+    compass north, the frame the autopilot fuses our poses in, so the compass bias is not in
+    it."""
     factor = inflation(cfg, state)
     pose_cov = np.zeros((6, 6))
     pose_cov[:3, :3] = factor * f.P[POS, POS]
-    pose_cov[3:, 3:] = factor * (f.P[THETA, THETA] + f.R_nom @ rot_cov_w @ f.R_nom.T)
+    pose_cov[3:, 3:] = factor * rot_cov
     vel_cov = np.zeros((6, 6))
     vel_cov[:3, :3] = factor * (R_l_b.T @ f.P[VEL, VEL] @ R_l_b)
     vel_cov[3:, 3:] = np.eye(3) * cfg.rate_std_rad_s**2
@@ -54,3 +67,28 @@ def build_estimate(f: NavFilter, cfg: FusionConfig, *, R_w_b: np.ndarray, rot_co
         reset_counter=reset_counter, state=state)
     arrays = (estimate.position, R_l_b, velocity, rates, pose_cov, vel_cov)
     return estimate if all(np.all(np.isfinite(a)) for a in arrays) else None
+
+
+class Continuity:
+    """Remembers the last estimate sent and tells whether the next one jumps: moves from where
+    the last one's velocity led further than both covariances allow (chi-square gate, 3 dof).
+    A filter update never does that; a restart of the map's scale can. The autopilot must then
+    get a new reset_counter rather than fuse the jump."""
+
+    def __init__(self, gate: float):
+        self.gate = gate
+        self.last: VisionEstimate | None = None
+
+    def jumped(self, e: VisionEstimate) -> bool:
+        """Whether `e` is discontinuous with the last estimate; `e` becomes the last."""
+        last, self.last = self.last, e
+        if last is None:
+            return False
+        dt = max(e.t_capture - last.t_capture, 0.0)
+        d = e.position - (last.position + last.velocity_local * dt)
+        if float(np.linalg.norm(d)) <= JUMP_FLOOR_M:
+            return False
+        motion = np.trace(last.velocity_covariance[:3, :3]) / 3.0 * dt**2
+        S = (last.pose_covariance[:3, :3] + e.pose_covariance[:3, :3]
+             + np.eye(3) * (motion + JUMP_FLOOR_M**2))
+        return float(d @ np.linalg.solve(S, d)) > self.gate

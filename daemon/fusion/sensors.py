@@ -10,6 +10,9 @@ What ArduPilot and PX4 stream and in which units:
   (MAV_SENSOR_ROTATION_PITCH_270 = 25 points down).
 - SCALED_PRESSURE: time_boot_ms, press_abs hPa.
 - ALTITUDE (PX4): time_usec, altitude_monotonic m (barometric, never reset in flight).
+- LOCAL_POSITION_NED (both): time_boot_ms, the autopilot's own position estimate, m NED.
+- EXTENDED_SYS_STATE (both, no stamp): landed_state from the autopilot's land detector.
+- HEARTBEAT (no stamp): base_mode's MAV_MODE_FLAG_SAFETY_ARMED; ArduCopter's system_status.
 Accelerations are specific force in body FRD (about -9.81 m/s^2 on z at rest).
 Anything not finite or out of its sensor's range is dropped here, so the filter never sees it.
 """
@@ -72,7 +75,19 @@ class Baro:
     source: str
 
 
-Sample = Imu | Attitude | Range | Baro
+@dataclass(frozen=True)
+class LocalPosition:
+    """The autopilot's own position estimate (LOCAL_POSITION_NED), metres NED."""
+
+    t: float
+    position: np.ndarray
+
+
+Sample = Imu | Attitude | Range | Baro | LocalPosition
+NOT_AUTOPILOTS = (mavlink2.MAV_TYPE_GCS, mavlink2.MAV_TYPE_ONBOARD_CONTROLLER)
+ARDUPILOT_LANDED = {mavlink2.MAV_STATE_STANDBY: True, mavlink2.MAV_STATE_ACTIVE: False}
+LANDED = {mavlink2.MAV_LANDED_STATE_ON_GROUND: True, mavlink2.MAV_LANDED_STATE_IN_AIR: False,
+          mavlink2.MAV_LANDED_STATE_TAKEOFF: False, mavlink2.MAV_LANDED_STATE_LANDING: False}
 
 
 def pressure_altitude(hpa: float) -> float:
@@ -149,9 +164,34 @@ def _altitude(msg: object, t: float) -> list[Sample]:
     return [Baro(t, float(h), "ALTITUDE")]
 
 
+def _local_position(msg: object, t: float) -> list[Sample]:
+    p = np.array([msg.x, msg.y, msg.z], float)
+    if not np.all(np.isfinite(p)) or float(np.max(np.abs(p))) > MAX_ALTITUDE_M:
+        return []
+    return [LocalPosition(t, p)]
+
+
 PARSERS = {"HIGHRES_IMU": _highres, "SCALED_IMU": _scaled_imu, "RAW_IMU": _scaled_imu,
            "ATTITUDE": _attitude, "DISTANCE_SENSOR": _distance, "SCALED_PRESSURE": _pressure,
-           "ALTITUDE": _altitude}
+           "ALTITUDE": _altitude, "LOCAL_POSITION_NED": _local_position}
+
+
+def flight_states(msg: object) -> list[tuple[str, bool | None]]:
+    """("landed", on the ground or None when the autopilot cannot tell) and ("armed", flag) that
+    a message says: EXTENDED_SYS_STATE's landed state; an autopilot HEARTBEAT's armed flag and,
+    from ArduPilot, its system status (ArduCopter reports STANDBY exactly while its land
+    detector says landed, ACTIVE in flight: GCS_MAVLINK_Copter::vehicle_system_status)."""
+    kind = msg.get_type()
+    if kind == "EXTENDED_SYS_STATE":
+        return [("landed", LANDED.get(msg.landed_state))]
+    mode = msg.base_mode if kind == "HEARTBEAT" else None
+    if not (isinstance(mode, int) and msg.autopilot != mavlink2.MAV_AUTOPILOT_INVALID
+            and msg.type not in NOT_AUTOPILOTS):
+        return []
+    states = [("armed", bool(mode & mavlink2.MAV_MODE_FLAG_SAFETY_ARMED))]
+    if msg.autopilot == mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA:
+        states.append(("landed", ARDUPILOT_LANDED.get(msg.system_status)))
+    return states
 
 
 def parse(msg: object) -> tuple[float, list[Sample]] | None:

@@ -12,11 +12,10 @@ tracker's world and NED, with the anchor cloned from the vehicle position when a
 (so a new map keeps the vehicle where it was). theta is folded into R_nom after every update.
 
 The tracker's errors are not white at the frame rate. Over a flat scene its tilt trades off
-against its translation: a tilt error of 1-3 degrees wanders over about a second, and its
-position error follows it (height x tilt: tenths of a metre; on the synthetic flights at 6-12 m
-the tilt explains 60-75 % of the position error that is left after a Sim(3) fit of the whole
-map). Fused as white noise, that is averaged over 30 frames a second as if independent, and the
-filter becomes several times too confident, scale included. delta is that tilt error, a
+against its translation: a tilt error wanders over about a second, and its position error
+follows it (height x tilt), most of what is left after a Sim(3) fit of the whole map. Fused as
+white noise, that is averaged over 30 frames a second as if independent, and the filter becomes
+several times too confident, scale included. delta is that tilt error, a
 first-order Gauss-Markov process (vo_tilt_error_std_deg, vo_error_time_s); its effect on the
 position is the tracker's own regression of position on rotation (its covariance), and the
 autopilot's attitude observes it.
@@ -39,7 +38,6 @@ VO_TILT = slice(18, 20)  # about N's north and east axes: the tracker's heading 
 DIM = 20  # off against its position over a flat scene below
 GRAVITY_N = np.array([0.0, 0.0, 9.80665])
 HEADING = 15  # theta's z component: rotation about N's down axis
-ORIGIN_VAR = 1e-6  # m^2: what is left of the position variance where the local frame starts
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -84,13 +82,11 @@ class NavFilter:
         self.has_baro = False
         self.segment = -1  # id of the map segment the anchor belongs to
         self.realigns = 0  # segments restarted because the tracker's poses stopped fitting
-        self.published = False  # an estimate of this segment has been sent
+        self.converged = False  # scale and heading of this segment passed the alignment gate
         # where the current map's scale came from: "prior" (the wide one: the EKF's own scale
         # is not trusted, forget_scale), "given" (start_segment's, e.g. the rangefinder's) or
         # "fit" (rescale)
         self.scale_source = "prior"
-        # where the first estimate ever sent put the vehicle: it defines the local frame
-        self.origin: np.ndarray | None = None
         self.scene_ne: np.ndarray | None = None  # where the map's height was last fused
         self.climb = ClimbScale()  # the current map's heights against the barometer's
         self.motion = self._accel_scale()  # its displacement against the IMU's
@@ -122,25 +118,27 @@ class NavFilter:
         """Everything needed to continue the filter from here."""
         return (self.t, self.x.copy(), self.P.copy(), self.R_nom.copy(), self.p_w0.copy(),
                 self.has_ground, self.has_baro, dict(self.rejections), self.segment,
-                self.accel, self.t_accel, self.realigns, self.published, self.scale_source,
-                self.origin, self.scene_ne, self.climb.copy(), self.motion.copy())
+                self.accel, self.t_accel, self.realigns, self.converged, self.scale_source,
+                self.scene_ne, self.climb.copy(), self.motion.copy())
 
     def restore(self, snap: tuple) -> None:
         """Go back to a snapshot."""
         (self.t, x, P, R_nom, p_w0, self.has_ground, self.has_baro, rejections, self.segment,
-         self.accel, self.t_accel, self.realigns, self.published, self.scale_source,
-         self.origin, self.scene_ne, climb, motion) = snap
+         self.accel, self.t_accel, self.realigns, self.converged, self.scale_source,
+         self.scene_ne, climb, motion) = snap
         self.ekf.x, self.ekf.P = x.copy(), P.copy()
         self.climb, self.motion = climb.copy(), motion.copy()
         self.R_nom, self.p_w0, self.rejections = R_nom.copy(), p_w0.copy(), dict(rejections)
 
     # --- initialisation -----------------------------------------------------------------------
 
-    def start(self, t: float, velocity_std: float) -> None:
-        """First use: vehicle at the origin of N, at rest within `velocity_std`."""
+    def start(self, t: float, velocity_std: float, height_z: float = 0.0) -> None:
+        """First use: the vehicle where the local frame starts, above its origin at the
+        autopilot's own height `height_z` (NED z), still within `velocity_std`."""
         cfg = self.cfg
         self.t = t
         self.ekf.x = np.zeros(DIM)
+        self.ekf.x[2] = height_z
         self.ekf.x[LOG_SCALE] = np.log(cfg.initial_scale)
         var = np.zeros(DIM)
         var[POS] = 1e-6
@@ -157,7 +155,7 @@ class NavFilter:
                       log_scale: float, scale_std: float | None = None) -> None:
         """A new map: clone the camera position as the anchor, fresh alignment, and the scale
         with `scale_std` (default: the prior's)."""
-        self.published = False
+        self.converged = False
         self.climb = ClimbScale()
         self.motion = self._accel_scale()
         x, P = self.ekf.x, self.ekf.P
@@ -212,8 +210,7 @@ class NavFilter:
 
     def forget_scale(self) -> None:
         """Back to the wide prior's uncertainty: from there the EKF's linearised fixes settle
-        far off and become sure of it before the estimate gets there (on survey-down without
-        a rangefinder, 24 % low sure to 3 %; IMU only, 38 sigma off within 2 s); the fits of
+        far off and become sure of it before the estimate gets there; the fits of
         climb_scale.py and accel_scale.py give it a start without linearisation."""
         P = self.ekf.P
         P[LOG_SCALE, :] = 0.0
@@ -226,8 +223,7 @@ class NavFilter:
         position, so no filter lag is frozen in. The anchor is the point of N the map calls
         p_w0, not where the camera truly was then: the tracker's noise at the old anchor and
         the new one cancel along the chain, so moving adds no noise (adding the frame's noise
-        at every move made the anchor a random walk of it: survey-down's position NEES
-        0.16-0.84 with errors a third of the std)."""
+        at every move would make the anchor a random walk of it)."""
         x, P = self.ekf.x, self.ekf.P
         v = self.scale * (self.R_nom @ (np.asarray(p_w, float) - self.p_w0))
         J = np.zeros((3, DIM))
@@ -240,23 +236,6 @@ class NavFilter:
         P[ANCHOR, ANCHOR] = JP @ J.T
         x[ANCHOR] = x[ANCHOR] + v
         self.p_w0 = np.asarray(p_w, float).copy()
-
-    def fix_origin(self) -> None:
-        """The first estimate the autopilot receives defines where the local frame is: the
-        position error accumulated before it (dead reckoning while the scale was still unknown)
-        is no error of that frame. Moving the frame by the unknown error moves every state that
-        lives in it (position, the map's anchor, ground and baro levels) and tells nothing about
-        the others. Left in, it stayed in the published covariance for the whole flight (a
-        0.5-1 m north std on survey-down, errors a tenth of it); conditioning on the position
-        instead would have claimed the scale known (its error made that position error)."""
-        J = np.eye(DIM)
-        J[POS, POS] = 0.0
-        J[ANCHOR, POS] = -np.eye(3)
-        J[GROUND, 2] = J[BARO, 2] = -1.0
-        P = J @ self.ekf.P @ J.T
-        P[POS, POS] += np.eye(3) * ORIGIN_VAR
-        self.ekf.P = 0.5 * (P + P.T)
-        self.origin = self.x[POS].copy()
 
     def reference(self, which: str, value: float, std: float) -> None:
         """(Re)start the ground level ("range") or baro offset ("baro") so that the measured

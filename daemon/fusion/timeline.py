@@ -15,13 +15,17 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 FUTURE_LIMIT_S = 5.0  # events stamped further ahead of the newest frame are wrong
+# events at one time are applied in this order whatever order they arrived in (the sensors
+# first, the frame that uses them last); same kinds keep their arrival order
+KIND_ORDER = {"attitude": 0, "imu": 1, "baro": 2, "range": 3, "frame": 4}
 
 
 @dataclass(order=True)
 class Event:
-    """Something that happened at time t (ties keep arrival order)."""
+    """Something that happened at time t."""
 
     t: float
+    rank: int
     seq: int
     kind: str = field(compare=False)
     data: object = field(compare=False)
@@ -41,7 +45,8 @@ class Timeline:
 
     def add(self, t: float, kind: str, data: object) -> None:
         """Queue an event of `kind` at time t."""
-        bisect.insort(self.pending, Event(t, next(self._seq), kind, data))
+        bisect.insort(self.pending, Event(t, KIND_ORDER.get(kind, len(KIND_ORDER)),
+                                          next(self._seq), kind, data))
 
     def run(self, until: float, now_t: float | None, apply: Callable[[Event], None],
             restore: Callable[[object], None], snapshot: Callable[[], object]) -> None:
@@ -58,12 +63,6 @@ class Timeline:
             if event.kind == "frame":
                 self.snapshots.append((event.t, snapshot()))
         self._prune(until)
-
-    def retake(self, t: float, snapshot: object) -> None:
-        """Replace the snapshot taken at time t (after its frame) by `snapshot`: a change made
-        to the filter after that frame (fix_origin) must survive a rewind to it."""
-        if self.snapshots and self.snapshots[-1][0] == t:
-            self.snapshots[-1] = (t, snapshot)
 
     def _rewind(self, t: float, now_t: float, restore: Callable[[object], None]) -> None:
         i = bisect.bisect_right([s for s, _ in self.snapshots], t)

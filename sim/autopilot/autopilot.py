@@ -244,6 +244,8 @@ class AutopilotModel(ABC):
     def stream_message(self, name: str, now: float) -> object | None:
         """The message `name` now; every stamp on the boot clock (TIMESYNC's ts1 too)."""
         uptime = self.uptime(now)
+        if name in self.opt.absent:  # no such sensor fitted: asking streams nothing
+            return None
         if name in SENSOR_MESSAGES:
             return sensor_message(self.mav, name, uptime, int(uptime * 1000), self.vehicle)
         if name == "SYSTEM_TIME":

@@ -41,6 +41,7 @@ class SimOptions:
     dynamics: Dynamics | None = None  # a vehicle that flies on the model's own controllers
     imu_noise: ImuNoise = field(default_factory=ImuNoise)
     seed: int = 0
+    absent: frozenset[str] = frozenset()  # sensor messages this vehicle has no sensor for
 
     def stored_params(self) -> dict[str, float]:
         return {**self.params, **self.param_overrides}

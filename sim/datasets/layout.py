@@ -1,6 +1,8 @@
 """The sequence layout of `../shared/data` and of `sdvl render`: frames.txt, camera.yaml,
-groundtruth.txt, and optionally imu.csv, sensors.csv and rig.yaml (the ground truth's world
-frame, e.g. `world: NED`, and the camera mounting `T_b_c`, a 4x4 list)."""
+groundtruth.txt, and optionally imu.csv, sensors.csv, rig.yaml (the ground truth's world
+frame, e.g. `world: NED`, and the camera mounting `T_b_c`, a 4x4 list) and depth.txt (16-bit
+depth PNGs, TUM format; the `depth` keys of camera.yaml say how to read them, TUM's
+convention when it has none)."""
 
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ from calib.camera_yaml import load_camera
 from daemon.recordings import read_frame_list
 from sdvl.errors import InputError
 from sdvl.textfile import check_increasing, read_numeric_table
+from sim.datasets.depth import depth_list, folder_depth_spec
 from sim.sequence import ImuSamples, Sequence, image_list_sequence
 from sim.trajectory import read_tum
 
@@ -101,4 +104,5 @@ def read_layout(path: Path, camera: CameraModel | None = None) -> Sequence:
         groundtruth=read_tum(gt_path) if gt_path.is_file() else None,
         imu=read_imu_csv(imu_path) if imu_path.is_file() else None,
         extras=extras,
+        depth_loader=depth_list(path, times, folder_depth_spec(path), camera),
     )

@@ -1,4 +1,5 @@
-"""TUM RGB-D sequences as distributed: rgb.txt, groundtruth.txt, accelerometer.txt."""
+"""TUM RGB-D sequences as distributed: rgb.txt, depth.txt, groundtruth.txt,
+accelerometer.txt."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from calib.camera_yaml import load_camera
 from daemon.recordings import read_frame_list
 from sdvl.errors import InputError
 from sdvl.textfile import read_numeric_table
+from sim.datasets.depth import depth_list, folder_depth_spec
 from sim.sequence import ImuSamples, Sequence, image_list_sequence
 from sim.trajectory import read_tum
 
@@ -40,15 +42,18 @@ def tum_camera(path: Path) -> CameraModel:
 
 
 def read_tum_rgbd(path: Path, camera: CameraModel | None = None) -> Sequence:
-    """A TUM RGB-D sequence: colour frames as grey, ground truth and accelerometer if present."""
+    """A TUM RGB-D sequence: colour frames as grey, depth associated by time (depth.txt),
+    ground truth and accelerometer if present."""
     times, files = read_frame_list(path / "rgb.txt")
+    camera = camera or tum_camera(path)
     gt_path, acc_path = path / "groundtruth.txt", path / "accelerometer.txt"
     imu = None
     if acc_path.is_file():
         acc = read_numeric_table(acc_path, 4, "timestamp ax ay az")
         imu = ImuSamples(acc[:, 0], acc[:, 1:4], None)
     return image_list_sequence(
-        path.name, camera or tum_camera(path), times, files,
+        path.name, camera, times, files,
         groundtruth=read_tum(gt_path) if gt_path.is_file() else None, imu=imu,
         extras={"root": path},
+        depth_loader=depth_list(path, times, folder_depth_spec(path), camera),
     )

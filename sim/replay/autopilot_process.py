@@ -3,8 +3,9 @@ flying a vehicle trajectory in step with the frames the replay releases.
 
 The replay's frame source publishes `clock = (t_capture - t_source, t_source)` of the newest
 frame it released into shared memory; the vehicle's time is the sequence time `now - offset`,
-held at the start pose before the first frame and never ahead of the newest frame by more than
-`MAX_LEAD_S` (so an as-fast-as-possible replay does not fly ahead of its frames).
+held still at the start pose before the flight (the pre-flight on the ground, when the pilot
+arms: pilot.py) and never ahead of the newest frame by more than `MAX_LEAD_S` (so an
+as-fast-as-possible replay does not fly ahead of its frames).
 """
 
 from __future__ import annotations
@@ -19,13 +20,16 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from sim.autopilot import SimAutopilot, SimOptions, configured_options
+from sim.autopilot.records import AutopilotRecord
 from sim.autopilot.vehicle import Vehicle, nearest_sample
 from sim.datasets.layout import SensorSamples
+from sim.replay.pilot import Pilot
 from sim.sequence import ImuSamples
 from sim.trajectory import Trajectory
 
 MAX_LEAD_S = 0.1
 PAD_S = 1.0  # the trajectory is held this long at both ends, so its derivatives stay defined
+PILOT_TICK_S = 0.05
 VISION = ("ODOMETRY", "VISION_POSITION_ESTIMATE", "VISION_SPEED_ESTIMATE")
 
 
@@ -63,17 +67,20 @@ class ReplayVehicle:
         self.sensors = sensors
 
     def sequence_time(self) -> float:
-        """Where in the sequence the vehicle is now."""
+        """Where in the sequence the vehicle is now (before t_first: the pre-flight)."""
         offset, newest = self.clock[0], self.clock[1]
         if math.isnan(offset):
-            return self.t_first
-        t = min(time.monotonic() - offset, newest + MAX_LEAD_S)
-        return min(max(t, self.t_first), self.t_last)
+            return -math.inf
+        return min(time.monotonic() - offset, newest + MAX_LEAD_S, self.t_last)
 
     def state(self, _uptime: float) -> dict:
-        """Vehicle.state at the current sequence time (the uptime argument is ignored);
-        sensor_message saturates the IMU readings like a real sensor's."""
+        """Vehicle.state at the current sequence time (the uptime argument is ignored):
+        before the flight still at the start pose (its IMU reads gravity alone), in flight with
+        the recorded readings; sensor_message saturates the IMU readings like a real sensor's."""
         t = self.sequence_time()
+        if t < self.t_first:  # standing in the pad that holds the first pose
+            state = self.inner.state(self.t_first - 0.5 * PAD_S - self.inner.t0)
+            return with_recordings(state, self.t_first, None, self.sensors)
         return with_recordings(self.inner.state(t - self.inner.t0), t, self.imu, self.sensors)
 
 
@@ -98,17 +105,35 @@ def _interp_rows(t: float, times: np.ndarray, values: np.ndarray) -> np.ndarray:
     return np.array([np.interp(t, times, values[:, i]) for i in range(values.shape[1])])
 
 
+@dataclass
+class AutopilotOutcome:
+    """What the autopilot process hands back: the vision messages it received, its record
+    (STATUSTEXTs, events, its own estimate) and the pilot's arming attempts."""
+
+    vision: list[VisionMessage]
+    record: AutopilotRecord
+    arm_attempts: list[tuple[float, bool]]  # (monotonic time, armed)
+
+
 def _serve(conn: multiprocessing.connection.Connection, options: SimOptions,
-           trajectory: Trajectory | None, recorded: tuple, clock: multiprocessing.Array) -> None:
-    """The child: sends the autopilot's URL, then on request the vision messages received."""
+           trajectory: Trajectory | None, recorded: tuple, clock: multiprocessing.Array,
+           arm: bool) -> None:
+    """The child: sends the autopilot's URL; while the flight has not started, a pilot arms it
+    as soon as it lets them (`arm`); on request, its outcome."""
     sim = SimAutopilot(options)
+    vehicle = None
     if trajectory is not None:
-        sim.vehicle = ReplayVehicle(trajectory, clock, *recorded)
+        vehicle = sim.vehicle = ReplayVehicle(trajectory, clock, *recorded)
+    pilot = Pilot(sim) if arm else None
     with sim:
         conn.send(sim.url)
+        while not conn.poll(PILOT_TICK_S):
+            if pilot is not None and vehicle is not None:
+                pilot.tick(time.monotonic(), vehicle.sequence_time() < vehicle.t_first)
         conn.recv()
-        conn.send([VisionMessage(r.msg.get_type(), r.t, r.msg.to_dict())
-                   for r in sim.vision])
+        conn.send(AutopilotOutcome(
+            [VisionMessage(r.msg.get_type(), r.t, r.msg.to_dict()) for r in sim.vision],
+            sim.record, pilot.attempts if pilot else []))
 
 
 class AutopilotProcess:
@@ -116,12 +141,12 @@ class AutopilotProcess:
 
     def __init__(self, options: SimOptions | None = None,
                  trajectory: Trajectory | None = None, imu: ImuSamples | None = None,
-                 sensors: SensorSamples | None = None):
+                 sensors: SensorSamples | None = None, arm: bool = False):
         self.clock = multiprocessing.Array("d", [math.nan, math.nan])
         self._conn, child = multiprocessing.Pipe()
         self._process = multiprocessing.Process(
             target=_serve, args=(child, options or configured_options(), trajectory, (imu, sensors),
-                                 self.clock),
+                                 self.clock, arm),
             name="sim-autopilot", daemon=True)
         self._process.start()
         self.url: str = self._conn.recv()
@@ -130,8 +155,8 @@ class AutopilotProcess:
         """Tell the vehicle which sequence time the newest frame shows."""
         self.clock[0], self.clock[1] = t_capture - t_source, t_source
 
-    def finish(self) -> list[VisionMessage]:
-        """Stop the autopilot; the vision messages it received, in arrival order."""
+    def finish(self) -> AutopilotOutcome:
+        """Stop the autopilot; what it received and recorded."""
         try:
             self._conn.send("stop")
             return self._conn.recv()

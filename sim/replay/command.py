@@ -46,6 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="service config (TOML, as for sdvl run); its link and camera "
                              "source are replaced by the replay's, its mounting and default "
                              "sensor noise by a synthetic flight's own")
+    parser.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot",
+                        help="the simulated autopilot (default ardupilot), set up as "
+                             "sdvl check-autopilot --apply leaves it (sim/autopilot/BEHAVIOUR.md)")
     parser.add_argument("--without", action="append", default=[],
                         choices=sorted(SENSOR_STREAMS),
                         help="the autopilot does not stream this sensor (repeatable): fusion "
@@ -117,7 +120,7 @@ def _replay(sequence, config: Config, args: argparse.Namespace, out_dir: Path):
     config = choose_estimator(config, sequence, args.estimator)
     realtime = config.fusion.enabled if args.realtime is None else args.realtime
     replay = run_replay(sequence, config, realtime, args.max_frames, progress=not args.quiet,
-                        without=tuple(args.without))
+                        without=tuple(args.without), autopilot=args.autopilot)
     return (replay, *build_report(replay, out_dir))
 
 

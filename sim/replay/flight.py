@@ -102,15 +102,20 @@ def body_imu(sequence: object) -> ImuSamples | None:
     return imu if imu is not None and in_body else None
 
 
-def sensor_streams(flavour: str, flight: Trajectory | None,
-                   without: tuple[str, ...] = ()) -> dict[str, float]:
-    """The flavour's streams but those of the sensor kinds in `without` (SENSOR_STREAMS); the
-    rangefinder only when the whole flight stays within its range above the flat ground at NED
-    z = 0 (a hand-held dataset's 'height' means nothing)."""
-    left_out = {name for kind in without for name in SENSOR_STREAMS[kind]}
-    streams = {k: v for k, v in DEFAULT_STREAMS[flavour].items() if k not in left_out}
+def absent_sensors(flight: Trajectory | None, without: tuple[str, ...] = ()) -> frozenset[str]:
+    """The sensor messages the replayed vehicle cannot send: those of the sensor kinds in
+    `without` (SENSOR_STREAMS), and the rangefinder's unless the whole flight stays within its
+    range above the flat ground at NED z = 0 (a hand-held dataset's 'height' means nothing)."""
+    absent = {name for kind in without for name in SENSOR_STREAMS[kind]}
     if flight is not None:
         height = -flight.positions[:, 2]
         if height.min() < RANGEFINDER_M[0] or height.max() > RANGEFINDER_M[1]:
-            streams.pop("DISTANCE_SENSOR", None)
-    return streams
+            absent.add("DISTANCE_SENSOR")
+    return frozenset(absent)
+
+
+def sensor_streams(flavour: str, flight: Trajectory | None,
+                   without: tuple[str, ...] = ()) -> dict[str, float]:
+    """The flavour's usual streams but those the vehicle cannot send (absent_sensors)."""
+    absent = absent_sensors(flight, without)
+    return {k: v for k, v in DEFAULT_STREAMS[flavour].items() if k not in absent}

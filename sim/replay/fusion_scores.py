@@ -1,11 +1,10 @@
 """What the fusion filter's acceptance asks of a replay, from the received messages and the
 flown ground truth (after the start alignment only): position error as a share of the distance
 flown while published, heading error, consistency of the covariance the autopilot was sent
-(NEES per degree of freedom) and when publication started relative to the take-off.
-
-Publication starts once the filter's scale and heading have converged (daemon/fusion/
-alignment.py), so every received pose is "after convergence" and the time of the first one,
-counted from the take-off, bounds the scale's convergence time.
+(NEES per degree of freedom, and how often an error was beyond 3 sigma), when publication
+started and when the map's scale and heading converged (daemon/fusion/alignment.py), counted
+from the take-off. The fusion publishes from power-on, with a covariance that says how little
+it knows before the map converges.
 """
 
 from __future__ import annotations
@@ -18,6 +17,7 @@ from sim.sequence import Sequence
 from sim.trajectory import Trajectory
 
 TAKEOFF_CLIMB_M = 0.1  # the take-off starts when the height first changed by this much
+CHI2_3DOF_3SIGMA = 14.16  # chi-square, 3 dof, with a 3-sigma Gaussian's tail (0.27 %)
 VELOCITY_DT = 0.05  # ground-truth velocity: central difference over +-50 ms
 
 FUSION_KEYS = {
@@ -41,22 +41,33 @@ FUSION_KEYS = {
     "takeoff_s": f"sequence time the flight's height first changed by {TAKEOFF_CLIMB_M} m "
                  "(None: it never did)",
     "climb_m": "height gained from the take-off to the highest point, metres",
-    "publish_after_takeoff_s": "first_publish_s - takeoff_s: time from the take-off until "
-                               "scale and heading had converged (tracker start included)",
+    "publish_after_takeoff_s": "first_publish_s - takeoff_s (negative: published on the "
+                               "ground before the take-off)",
+    "aligned_after_takeoff_s": "time from the take-off until the map's scale and heading had "
+                               "converged (the fusion's 'aligned'; None: never), s",
+    "overconfident_fraction": "share of the received positions whose error is beyond 3 sigma "
+                              f"of the covariance they carried (chi-square > {CHI2_3DOF_3SIGMA}, "
+                              "3 dof, autopilot's heading frame)",
 }
 
 
-def nees_per_dof(errors: np.ndarray, covariances: np.ndarray) -> float | None:
-    """Mean of e^T C^-1 e / dof over the rows whose covariance is finite and invertible."""
+def normalized_errors(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
+    """e^T C^-1 e of the rows whose covariance is finite and invertible."""
     values = []
     for e, C in zip(errors, covariances, strict=True):
         if not (np.all(np.isfinite(e)) and np.all(np.isfinite(C))):
             continue
         try:
-            values.append(float(e @ np.linalg.solve(C, e)) / len(e))
+            values.append(float(e @ np.linalg.solve(C, e)))
         except np.linalg.LinAlgError:
             continue
-    return float(np.mean(values)) if values else None
+    return np.array(values)
+
+
+def nees_per_dof(errors: np.ndarray, covariances: np.ndarray) -> float | None:
+    """Mean of e^T C^-1 e / dof over the rows whose covariance is finite and invertible."""
+    values = normalized_errors(errors, covariances)
+    return float(np.mean(values)) / errors.shape[1] if len(values) else None
 
 
 def yaw_differences(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
@@ -114,10 +125,12 @@ def takeoff_time(flight: Trajectory, from_t: float) -> tuple[float | None, float
 
 def fusion_scores(aligned: Aligned, flight: Trajectory, velocity_error: np.ndarray,
                   position_cov: np.ndarray, velocity_cov: np.ndarray,
-                  tracking_start_s: float | None, compass_bias: float | None = None) -> dict:
+                  tracking_start_s: float | None, compass_bias: float | None = None,
+                  aligned_t: float | None = None) -> dict:
     """The FUSION_KEYS for matched poses: `velocity_error` and the covariances (N, 3, 3) in
     the local frame are rows of the aligned estimate; `compass_bias` in degrees (None: the
-    autopilot's heading frame is taken as true north)."""
+    autopilot's heading frame is taken as true north); `aligned_t` the sequence time the
+    map's scale and heading converged."""
     t = aligned.estimate.t
     truth = aligned.groundtruth.positions
     error = aligned.estimate.positions - truth
@@ -149,4 +162,12 @@ def fusion_scores(aligned: Aligned, flight: Trajectory, velocity_error: np.ndarr
         "takeoff_s": takeoff,
         "climb_m": climb,
         "publish_after_takeoff_s": None if takeoff is None else float(t[0]) - takeoff,
+        "aligned_after_takeoff_s": (None if takeoff is None or aligned_t is None
+                                    else aligned_t - takeoff),
+        "overconfident_fraction": _beyond_3_sigma(frame_error, position_cov),
     }
+
+
+def _beyond_3_sigma(errors: np.ndarray, covariances: np.ndarray) -> float | None:
+    values = normalized_errors(errors, covariances)
+    return float(np.mean(values > CHI2_3DOF_3SIGMA)) if len(values) else None

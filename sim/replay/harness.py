@@ -23,17 +23,18 @@ from daemon.config import Config, replace
 from daemon.run_command import tracker_factory
 from daemon.service import Service
 from sdvl.errors import InputError
-from sim.autopilot import configured_options
-from sim.replay.autopilot_process import AutopilotProcess, VisionMessage
+from sim.autopilot import SimOptions, configured_options
+from sim.replay.autopilot_process import AutopilotOutcome, AutopilotProcess, VisionMessage
 from sim.replay.flight import (
+    absent_sensors,
     body_imu,
     drone_config,
     is_ned,
     resampled,
-    sensor_streams,
     vehicle_trajectory,
 )
 from sim.replay.fusion_scores import compass_bias_deg
+from sim.replay.preflight import WithPreflight, held_before
 from sim.replay.prerender import prerendered, renders_on_the_fly
 from sim.replay.progress import Progress
 from sim.replay.recording import Recorder
@@ -80,6 +81,8 @@ class ReplaySource(SequenceSource):
         self.on_frame = on_frame
         self.offered = 0
         self._last_capture = -np.inf
+        self.flight_start_t = getattr(sequence, "start", -np.inf)  # after a pre-flight
+        self.flight_start: tuple[float, float] | None = None  # (t_source, t_capture) of it
 
     def read(self) -> tuple[float, float, np.ndarray] | None:
         item = super().read()
@@ -92,6 +95,8 @@ class ReplaySource(SequenceSource):
             t_capture = time.monotonic()
         self._last_capture = t_capture
         self.offered += 1
+        if self.flight_start is None and t_source >= self.flight_start_t:
+            self.flight_start = (t_source, t_capture)
         self.on_frame(t_source, t_capture)
         return t_source, t_capture, image
 
@@ -115,6 +120,15 @@ class ReplayRun:
     stats: dict = field(default_factory=dict)
     without: tuple[str, ...] = ()  # sensors the autopilot did not stream
     compass_bias_deg: float | None = None  # of the simulated autopilot's attitude
+    autopilot: AutopilotOutcome | None = None  # its record (not in lockstep)
+    flight_start: tuple[float, float] | None = None  # (t_source, t_capture): its first frame
+
+
+def aligned_time(estimator: object, rows: list[dict]) -> float | None:
+    """Sequence time of the frame at which the fusion's map first aligned (None: never, or no
+    fusion)."""
+    capture = getattr(estimator, "first_aligned_s", None)
+    return next((r["t_source"] for r in rows if r["t_capture"] == capture), None)
 
 
 def during_replay(trajectory: Trajectory, run: ReplayRun) -> Trajectory:
@@ -166,16 +180,37 @@ async def _serve(service: Service, source: ReplaySource, recorder: Recorder,
     return task.result()
 
 
+@dataclass(frozen=True)
+class ReplayPlan:
+    """How a sequence is replayed: at its timestamps or not, how many frames, which sensors the
+    vehicle lacks and which autopilot it flies: 'ardupilot' or 'px4' set up as check-autopilot
+    --apply leaves it (sim.autopilot.configured_options), or one's own SimOptions."""
+
+    realtime: bool
+    max_frames: int | None = None
+    without: tuple[str, ...] = ()
+    autopilot: str | SimOptions = "ardupilot"
+
+    def options(self, flight: Trajectory | None) -> SimOptions:
+        """The simulated autopilot: streams only when the service asks (as after a reboot),
+        no sensor the flight cannot have (flight.absent_sensors)."""
+        absent = absent_sensors(flight, self.without)
+        if isinstance(self.autopilot, SimOptions):
+            return dataclasses.replace(self.autopilot, absent=absent)
+        return configured_options(self.autopilot, requested={}, absent=absent)
+
+
 def run_replay(sequence: object, config: Config, realtime: bool,
                max_frames: int | None = None, progress: bool = True,
-               make_tracker: Callable | None = None, without: tuple[str, ...] = ()
-               ) -> ReplayRun:
+               make_tracker: Callable | None = None, without: tuple[str, ...] = (),
+               autopilot: str | SimOptions = "ardupilot") -> ReplayRun:
     """Play `sequence` through the service (its estimator as `config.fusion.enabled` says)
-    against the simulated autopilot, which does not stream the sensor kinds in `without`
+    against the simulated `autopilot`, whose vehicle has no sensor of the kinds in `without`
     (flight.SENSOR_STREAMS); `make_tracker(frame)` replaces the SDVL tracker (tests). Fusion
     without `realtime` runs in lockstep on a virtual clock (sim/replay/lockstep.py)."""
     from sim.replay.lockstep import lockstep_config, run_lockstep
 
+    plan = ReplayPlan(realtime, max_frames, without, autopilot)
     config = replace(drone_config(config, sequence),
                      camera={"source": "testpattern", "calibration": ""})
     lockstep = config.fusion.enabled and not realtime
@@ -192,18 +227,16 @@ def run_replay(sequence: object, config: Config, realtime: bool,
         run = run_lockstep(sequence, config, FirstFrames(sequence, max_frames), flight,
                            without, make_tracker, show)
     else:
-        run = _replay_with_link(sequence, config, realtime, max_frames, show, make_tracker,
-                                without)
+        run = _replay_with_link(sequence, config, plan, show, make_tracker)
     return dataclasses.replace(run, compass_bias_deg=compass_bias_deg(sequence))
 
 
-def _replay_with_link(sequence: object, config: Config, realtime: bool,
-                      max_frames: int | None, show: Progress, make_tracker: Callable,
-                      without: tuple[str, ...]) -> ReplayRun:
+def _replay_with_link(sequence: object, config: Config, plan: ReplayPlan, show: Progress,
+                      make_tracker: Callable) -> ReplayRun:
     show.note(f"replay {sequence.name}: warming up the tracker (the first run after an install "
               "compiles its kernels: about a minute)")
     with tempfile.TemporaryDirectory(prefix="sdvl-replay-") as folder:
-        if realtime and renders_on_the_fly(sequence):
+        if plan.realtime and renders_on_the_fly(sequence):
             show.note(f"replay {sequence.name}: rendering the frames first")
             warm_sequence = sequence
             sequence, warmup_s = prerendered(
@@ -211,23 +244,25 @@ def _replay_with_link(sequence: object, config: Config, realtime: bool,
                 alongside=lambda: warm_up(make_tracker, warm_sequence))
         else:
             warmup_s = warm_up(make_tracker, sequence)
-        return _replay(sequence, config, realtime, FirstFrames(sequence, max_frames), show,
-                       make_tracker, warmup_s, without)
+        return _replay(sequence, config, plan, show, make_tracker, warmup_s)
 
 
-def _replay(sequence: object, config: Config, realtime: bool, frames: FirstFrames,
-            show: Progress, make_tracker: Callable, warmup_s: float,
-            without: tuple[str, ...]) -> ReplayRun:
+def _replay(sequence: object, config: Config, plan: ReplayPlan, show: Progress,
+            make_tracker: Callable, warmup_s: float) -> ReplayRun:
     flight = (vehicle_trajectory(sequence.groundtruth, config,
                                  sequence.extras.get("T_ned_world"))
               if sequence.groundtruth is not None else None)
-    options = configured_options(requested=sensor_streams("ardupilot", flight, without))
+    options = plan.options(flight)
+    frames = FirstFrames(sequence, plan.max_frames)
+    drone = plan.realtime and config.fusion.enabled and flight is not None
     autopilot = AutopilotProcess(options, None if flight is None else resampled(flight),
-                                 body_imu(sequence), sequence.extras.get("sensors"))
-    received: list[VisionMessage] = []
+                                 body_imu(sequence), sequence.extras.get("sensors"), arm=drone)
+    if drone:  # it stands on the ground first, powered on, and the pilot arms
+        frames = WithPreflight(frames)
+        flight = held_before(flight, frames.seconds)
     try:
         config = replace(config, mavlink={"link": autopilot.url})
-        source = ReplaySource(frames, realtime, 1.0 / config.mavlink.max_rate_hz,
+        source = ReplaySource(frames, plan.realtime, 1.0 / config.mavlink.max_rate_hz,
                               autopilot.frame_released)
         recorder = Recorder()
         service = Service(config, source, make_tracker, on_tracked=recorder)
@@ -236,14 +271,16 @@ def _replay(sequence: object, config: Config, realtime: bool, frames: FirstFrame
         wall_s, cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0
         time.sleep(SETTLE_S)
     finally:
-        received = autopilot.finish()
+        outcome = autopilot.finish()
     stats = service.stats
     return ReplayRun(
-        name=sequence.name, realtime=realtime, fusion=config.fusion.enabled,
-        offered=source.offered, rows=recorder.rows, received=received, flight=flight,
+        name=sequence.name, realtime=plan.realtime, fusion=config.fusion.enabled,
+        offered=source.offered, rows=recorder.rows, received=outcome.vision, flight=flight,
         wall_s=wall_s, cpu_s=cpu_s, warmup_s=warmup_s,
         peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, exit_code=code,
         stats={"sent": stats.sent, "skipped_rate": stats.skipped_rate,
                "skipped_stale": stats.skipped_stale,
-               "skipped_duplicate": stats.skipped_duplicate},
-        without=without)
+               "skipped_duplicate": stats.skipped_duplicate,
+               "aligned_t": aligned_time(service.estimator, recorder.rows)},
+        without=plan.without, autopilot=outcome,
+        flight_start=source.flight_start)

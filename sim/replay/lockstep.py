@@ -27,7 +27,7 @@ from daemon.messages import odometry
 from sim.autopilot.vehicle import Vehicle, sensor_message
 from sim.replay.autopilot_process import VisionMessage, with_recordings
 from sim.replay.flight import body_imu, resampled, sensor_streams
-from sim.replay.harness import FirstFrames, ReplayRun
+from sim.replay.harness import FirstFrames, ReplayRun, aligned_time
 from sim.replay.progress import Progress
 from sim.trajectory import Trajectory
 
@@ -66,7 +66,22 @@ def autopilot_messages(sequence: object, flight: Trajectory, streams: dict[str, 
             boot_ms = round((t + BOOT_CLOCK) * 1000)
             message = sensor_message(mav, name, float(t) - vehicle.t0, boot_ms, vehicle)
             out.append((t + OUR_CLOCK + LINK_LATENCY_S, message))
+    out += flight_state_messages(mav, t0, end)
     out.sort(key=lambda item: item[0])
+    return out
+
+
+def flight_state_messages(mav: mavlink2.MAVLink, t0: float, end: float
+                          ) -> list[tuple[float, object]]:
+    """(arrival, message) of the autopilot's HEARTBEAT (1 Hz) and EXTENDED_SYS_STATE (5 Hz,
+    as the service requests it) for a flight already under way at its first frame: armed, in
+    the air."""
+    armed = mavlink2.MAV_MODE_FLAG_SAFETY_ARMED | mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+    out = [(t + OUR_CLOCK + LINK_LATENCY_S, mav.heartbeat_encode(
+        mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, armed, 0,
+        mavlink2.MAV_STATE_ACTIVE)) for t in np.arange(t0, end, 1.0)]
+    out += [(t + OUR_CLOCK + LINK_LATENCY_S, mav.extended_sys_state_encode(
+        0, mavlink2.MAV_LANDED_STATE_IN_AIR)) for t in np.arange(t0, end, 0.2)]
     return out
 
 
@@ -97,10 +112,11 @@ def run_lockstep(sequence: object, config: Config, frames: FirstFrames, flight: 
             start = time.perf_counter()
             result = tracker.process(image, t)
             track_s = time.perf_counter() - start
-            clock[0] = t_capture + RESULT_DELAY_S
-            while k < len(messages) and messages[k][0] <= clock[0]:
+            while k < len(messages) and messages[k][0] <= t_capture + RESULT_DELAY_S:
+                clock[0] = messages[k][0]
                 estimator.on_autopilot_message(messages[k][1])
                 k += 1
+            clock[0] = t_capture + RESULT_DELAY_S
             estimate = estimator.on_frame(result, t_capture)
             if estimate is not None:
                 msg = odometry(mav, estimate)
@@ -118,7 +134,8 @@ def run_lockstep(sequence: object, config: Config, frames: FirstFrames, flight: 
         received=received, flight=flight, wall_s=time.perf_counter() - wall0,
         cpu_s=time.process_time() - cpu0, warmup_s=0.0,
         peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, exit_code=0,
-        stats={"sent": len(received), "skipped_stale": 0, "lockstep": True}, without=without)
+        stats={"sent": len(received), "skipped_stale": 0, "lockstep": True,
+               "aligned_t": aligned_time(estimator, rows)}, without=without)
 
 
 def lockstep_config(config: Config) -> Config:

@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from sim.metrics import Aligned, align_trajectories, evaluate, interpolate
 from sim.replay.autopilot_process import VisionMessage
+from sim.replay.autopilot_scores import AUTOPILOT_KEYS, autopilot_scores
 from sim.replay.fusion_scores import FUSION_KEYS, fusion_scores, velocity_at
 from sim.replay.harness import ReplayRun
 from sim.replay.recording import stats_ms
@@ -53,7 +54,8 @@ KEYS = {
     "tracking_ms_p95": "tracker time per processed frame, p95, ms",
     "cpu_ms_per_frame": "CPU time of the companion process per processed frame, ms",
     "peak_rss_mb": "peak resident memory of the companion process, MB",
-    "resets": "changes of reset_counter in the received messages (new map segments)",
+    "resets": "changes of reset_counter in the received messages (discontinuities)",
+    **AUTOPILOT_KEYS,
     "wall_s": "replay wall time (after warm-up), s",
     "warmup_s": "tracker warm-up before the replay started, s",
     "received_file": "TUM file of the received poses (sequence time)",
@@ -245,7 +247,8 @@ def accuracy(run: ReplayRun, received: Received,
         tracked = [r["t_source"] for r in run.rows if r["has_pose"]]
         out.update(fusion_scores(aligned, groundtruth, velocity_error,
                                  received.position_cov[index], received.velocity_cov[index],
-                                 min(tracked) if tracked else None, run.compass_bias_deg))
+                                 min(tracked) if tracked else None, run.compass_bias_deg,
+                                 run.stats.get("aligned_t")))
     return out, aligned, groundtruth
 
 
@@ -261,6 +264,7 @@ def build_report(run: ReplayRun, out_dir: Path | None
               **frame_counts(run), "messages_received": len(received.t_arrival),
               "skipped_stale": run.stats.get("skipped_stale", 0),
               **scores, **timing(run, received), "resets": received.resets,
+              **autopilot_scores(run.autopilot, run.flight_start, run.flight, run.received),
               "wall_s": run.wall_s, "warmup_s": run.warmup_s}
     return {key: report[key] for key in KEYS}, aligned, reference
 
@@ -291,6 +295,7 @@ def format_report(r: dict) -> str:
         f"rotation {_num(r['rot_rmse_deg'], '.2f')} deg",
         f"velocity   RMSE {_num(r['velocity_rmse_m_s'], '.3f')} m/s",
         *_fusion_lines(r),
+        *_autopilot_lines(r),
         f"latency    capture-to-send p50 {_num(r['latency_ms_p50'], '.1f')} / p95 "
         f"{_num(r['latency_ms_p95'], '.1f')} / p99 {_num(r['latency_ms_p99'], '.1f')} ms; "
         f"to arrival p99 {_num(r['arrival_latency_ms_p99'], '.1f')} ms",
@@ -317,8 +322,26 @@ def _fusion_lines(r: dict) -> list[str]:
         f"{_num(r['nees_velocity'], '.2f')}",
         f"           tracking from {_num(r['tracking_start_s'], '.2f')} s, first published "
         f"{r['first_publish_s']:.2f} s; take-off {_num(r['takeoff_s'], '.2f')} s (climb "
-        f"{r['climb_m']:.1f} m): published {_num(r['publish_after_takeoff_s'], '.2f')} s "
-        "after it"]
+        f"{r['climb_m']:.1f} m): published {_num(r['publish_after_takeoff_s'], '+.2f')} s, "
+        f"aligned {_num(r['aligned_after_takeoff_s'], '+.2f')} s after it; errors beyond 3 "
+        f"sigma {_pct(r['overconfident_fraction'])}"]
+
+
+def _autopilot_lines(r: dict) -> list[str]:
+    if r["first_reset_counter"] is None and r["arm_attempts"] is None:
+        return []
+    armed = ("never armed" if r["armed_s"] is None
+             else f"armed at {r['armed_s']:+.1f} s")
+    refusals = "; ".join(r["prearm_failures"] or []) or "none"
+    extnav = ("never used our estimate" if r["extnav_s"] is None
+              else f"EKF used our estimate from {r['extnav_s']:+.1f} s (height step "
+                   f"{r['extnav_height_step_m']:.3f} m)")
+    return [
+        f"autopilot  {armed} ({r['arm_attempts']} attempts; refused: {refusals})",
+        f"           {extnav}, largest height step {_num(r['max_height_step_m'], '.3f')} m; "
+        f"first reset_counter {r['first_reset_counter']}, {r['position_resets']} position "
+        f"resets, failsafes: {', '.join(r['failsafes'] or []) or 'none'}; its own error "
+        f"{_num(r['autopilot_ate_m'], '.3f')} m (times from the flight's first frame)"]
 
 
 def _files_line(r: dict) -> list[str]:

@@ -16,7 +16,10 @@ Frames: NED world (x north, y east, z down, ground at z = 0), camera x right y d
   - "imu_clean": the IMU without noise or bias; "imu_bias": (accel, gyro) true biases (N, 3);
   - "blackouts" / "gaps": (start, end) seconds when the lens is covered / no frames come;
   - "sensor_noise": the SensorNoise the sensors were made with (their datasheet);
-  - "preset", "seed", "path" (the BodyPath, for T_w_b at any time).
+  - "depth_sensor": the DepthSensor the depth maps are measured with;
+  - "preset", "seed", "path" (the BodyPath, for T_w_b at any time);
+- `depth_loader`: the depth map of frame i as the preset's depth camera
+  (sim.synth.depth_sensor) measures it, rendered when asked for.
 Frame timestamps start at 0 s; frames inside gaps are missing (timestamps jump).
 """
 
@@ -27,10 +30,11 @@ import numpy as np
 from calib.camera import CameraModel
 from sdvl.errors import InputError
 from sim.sequence import Sequence
+from sim.synth.depth_sensor import DepthSensor, depth_sensor, measure_depth
 from sim.synth.effects import DARK_LEVEL, exposure_gain, finish, subframe_count
 from sim.synth.events import frame_times
 from sim.synth.presets import FlightSpec, preset_spec
-from sim.synth.raycast import render
+from sim.synth.raycast import Surfaces, render_surfaces
 from sim.synth.sensors import (
     IMU_RATE,
     SENSOR_RATE,
@@ -68,10 +72,20 @@ class FrameRenderer:
     def __init__(self, spec: FlightSpec, camera: CameraModel, times: np.ndarray, seed: int):
         self.spec, self.camera, self.times, self.seed = spec, camera, times, seed
         self.phase = float(np.random.default_rng(seed).uniform(0, 2 * np.pi))
+        self._last: tuple[float, Surfaces] | None = None  # a frame's image and depth share it
+
+    def surfaces(self, t: float) -> Surfaces:
+        """What the camera sees at time t, without effects (the last one is kept)."""
+        last = self._last  # read once: another thread may replace it meanwhile
+        if last is None or last[0] != t:
+            pose = camera_poses(self.spec, np.array([t]))[0]
+            last = self._last = (t, render_surfaces(self.spec.scene, self.camera, pose, t))
+        return last[1]
 
     def ideal(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Image (float32) and depth without effects at time t."""
-        return render(self.spec.scene, self.camera, camera_poses(self.spec, np.array([t]))[0], t)
+        surfaces = self.surfaces(t)
+        return surfaces.image, surfaces.depth
 
     def blurred(self, t: float) -> np.ndarray:
         """The image averaged over the shutter time (as many sub-frames as motion needs)."""
@@ -100,15 +114,27 @@ class FrameRenderer:
         gain = exposure_gain(self.spec.effects, t, self.phase)
         return finish(image, self.camera, self.spec.effects, gain, rng)
 
+    def depth(self, i: int, sensor: DepthSensor) -> np.ndarray:
+        """Frame i's depth map as `sensor` measures it (seeded per frame; none while the lens
+        is covered)."""
+        t = float(self.times[i])
+        if any(b.contains(t) for b in self.spec.blackouts):
+            return np.zeros((self.camera.height, self.camera.width), np.float32)
+        pose = camera_poses(self.spec, np.array([t]))[0]
+        return measure_depth(sensor, self.surfaces(t), self.camera, pose,
+                             self.spec.scene.glossy, np.random.default_rng([self.seed, i, 3]))
+
 
 def synthetic_sequence(preset: str, frames: int | None = None,
                        size: tuple[int, int] | None = None, seed: int = 0,
                        textures: str | None = "auto",
-                       noise: SensorNoise | None = None) -> Sequence:
+                       noise: SensorNoise | None = None,
+                       depth: str | None = None) -> Sequence:
     """A preset flight as an in-memory Sequence (see the module docstring for its contents).
 
     `frames` keeps the first N frames (and the sensors up to the last one); `textures` is
-    'auto' (shared photos when present), 'procedural' (no files) or a folder of images.
+    'auto' (shared photos when present), 'procedural' (no files) or a folder of images;
+    `depth` names the depth camera (sim.synth.depth_sensor.SENSORS; default the preset's).
     """
     spec = preset_spec(preset, seed, textures)
     times = frame_times(spec.path.duration, spec.fps, spec.gaps)
@@ -124,11 +150,14 @@ def synthetic_sequence(preset: str, frames: int | None = None,
     imu, ba, bg = imu_measured(clean, noise, rng)
     sensors = autopilot_sensors(spec.path, spec.scene, sample_times(end, SENSOR_RATE), noise,
                                 rng)
+    sensor = depth_sensor(depth or spec.depth_sensor)
+    renderer = FrameRenderer(spec, camera, times, seed)
     extras = {"sensors": sensors, "T_b_c": spec.T_b_c.copy(), "world": "NED",
               "gravity": GRAVITY, "imu_clean": clean, "imu_bias": (ba, bg),
               "blackouts": [(b.start, b.end) for b in spec.blackouts],
               "gaps": [(g.start, g.end) for g in spec.gaps],
-              "sensor_noise": noise, "preset": preset, "seed": seed, "path": spec.path}
-    return Sequence(preset, camera, times, image_loader=FrameRenderer(spec, camera, times, seed),
+              "sensor_noise": noise, "depth_sensor": sensor, "preset": preset, "seed": seed,
+              "path": spec.path}
+    return Sequence(preset, camera, times, image_loader=renderer,
                     groundtruth=Trajectory.from_matrices(times, camera_poses(spec, times)),
-                    imu=imu, extras=extras)
+                    imu=imu, extras=extras, depth_loader=lambda i: renderer.depth(i, sensor))

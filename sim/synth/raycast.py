@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import math
+from dataclasses import dataclass
 
 import numba
 import numpy as np
@@ -233,10 +234,21 @@ def cast_ray(geom, ox, oy, oz, dx, dy, dz):
     return best
 
 
-def render(scene: Scene, camera: CameraModel, T_w_c: np.ndarray,
-           t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Image (float32 grey, no effects) and depth map (float32 m, inf where empty) of `scene`
-    at time `t` from camera pose T_w_c (4x4)."""
+@dataclass
+class Surfaces:
+    """What a camera sees at one instant, without effects: grey image (float32 0..255), depth
+    along the optical axis (float32 m, inf where empty), the index of the quad each pixel
+    sees (-1: none) in `quads`, the scene's quads at that time."""
+
+    image: np.ndarray
+    depth: np.ndarray
+    hit: np.ndarray
+    quads: QuadList
+
+
+def render_surfaces(scene: Scene, camera: CameraModel, T_w_c: np.ndarray,
+                    t: float = 0.0) -> Surfaces:
+    """The Surfaces of `scene` at time `t` from camera pose T_w_c (4x4)."""
     rays, pixel_angle, (cols, rows) = camera_rays(camera)
     quads = scene.quads_at(t)
     R = np.ascontiguousarray(T_w_c[:3, :3], dtype=np.float64)
@@ -248,4 +260,12 @@ def render(scene: Scene, camera: CameraModel, T_w_c: np.ndarray,
                   atlas.pixels, atlas.levels, atlas.n_levels, float(scene.background),
                   np.asarray(scene.detail or (0.0, 1.0, 0.0), dtype=np.float64),
                   np.asarray(scene.overlay or (-1.0, 0.0, 1.0, 0.0, 0.0), dtype=np.float64))
-    return image, depth
+    return Surfaces(image, depth, hit, quads)
+
+
+def render(scene: Scene, camera: CameraModel, T_w_c: np.ndarray,
+           t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Image (float32 grey, no effects) and depth map (float32 m, inf where empty) of `scene`
+    at time `t` from camera pose T_w_c (4x4)."""
+    surfaces = render_surfaces(scene, camera, T_w_c, t)
+    return surfaces.image, surfaces.depth

@@ -139,7 +139,8 @@ class Scene:
     of rays that hit nothing; `detail` (texture, frequency factor, amplitude) adds fine
     structure to surfaces seen closer than one texel per pixel; `overlay` (base texture,
     overlay texture, scale, angle rad, weight) blends a second, scaled and turned texture into
-    every quad of the base texture (an aperiodic ground)."""
+    every quad of the base texture (an aperiodic ground); quads with a texture in `glossy`
+    are shiny for depth cameras (sim.synth.depth_sensor)."""
 
     quads: QuadList
     atlas: TextureAtlas
@@ -148,6 +149,7 @@ class Scene:
     detail: tuple[int, float, float] | None = None
     overlay: tuple[int, int, float, float, float] | None = None
     height_at: Callable | None = None
+    glossy: tuple[int, ...] = ()
 
     def quads_at(self, t: float) -> QuadList:
         """Everything in the scene at time t."""

@@ -56,10 +56,7 @@ class SensorNoise:
         """The filter's accel_noise: the accelerometer's density and the attitude's white noise
         times g (each ATTITUDE sample held for 1/SENSOR_RATE), doubled for what that white model
         leaves out (the attitude held through manoeuvres, the compass bias turning the
-        acceleration). Measured, lockstep seeds 0-4, hover-down and survey-down position
-        NEES: undoubled (0.005 m/s^2/sqrt(Hz)) up to 2.37 and hover-down's ATE half as large
-        again; doubled 0.18-1.45 and 0.31-1.20, hover ATE 0.018-0.048 m; the hardware default
-        0.02: 0.13-1.04 and 0.24-1.05, hover ATE 0.015-0.042 m."""
+        acceleration)."""
         attitude = GRAVITY * self.attitude_noise / np.sqrt(SENSOR_RATE)
         return 2.0 * float(np.hypot(self.accel_noise, attitude))
 

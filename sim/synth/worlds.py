@@ -30,8 +30,9 @@ def texture_images(seed: int, source: str | None) -> list[np.ndarray]:
 def outdoor_scene(seed: int, source: str | None, clear_radius: float = 4.0,
                   extent: float = 60.0, blocks: int = 30) -> Scene:
     """Textured ground at z = 0 with buildings (0.5-3 m), ramps and flat photo patches
-    (fields, roofs) in a square of +-`extent` m; nothing taller than the ground within
-    `clear_radius` m of the origin (take-off spot)."""
+    (fields, roofs; those of the second photo are shiny metal roofs) in a square of
+    +-`extent` m; nothing taller than the ground within `clear_radius` m of the origin
+    (take-off spot)."""
     rng = np.random.default_rng(seed)
     quads = QuadList()
     quads.add([-INFINITE / 2, -INFINITE / 2, 0.0], [1, 0, 0], [0, 1, 0], INFINITE, INFINITE,
@@ -55,11 +56,12 @@ def outdoor_scene(seed: int, source: str | None, clear_radius: float = 4.0,
         size = (rng.uniform(2, 8), rng.uniform(2, 8), rng.uniform(0.5, 3.0))
         add_box(quads, center, size, rng.uniform(0, np.pi), DETAIL, 0.008, rng)
     return Scene(quads, build_atlas(texture_images(seed, source)), background=150.0,
-                 detail=(DETAIL, 8.0, 0.4), overlay=GROUND_OVERLAY)
+                 detail=(DETAIL, 8.0, 0.4), overlay=GROUND_OVERLAY, glossy=(PHOTO0 + 1,))
 
 
 def room_scene(seed: int, source: str | None, size=(10.0, 7.0), height: float = 3.0) -> Scene:
-    """A room centred on the origin with photo and pattern walls, tables and cabinets."""
+    """A room centred on the origin with photo and pattern walls, tables and cabinets; the
+    posters (and furniture covered with the same photo) are glossy prints."""
     rng = np.random.default_rng(seed)
     quads = QuadList()
     add_room(quads, size, height, (GROUND, PHOTO0 + 2, DETAIL), 0.004, rng)
@@ -72,4 +74,4 @@ def room_scene(seed: int, source: str | None, size=(10.0, 7.0), height: float = 
         quads.add([wall_x, -1.0, -0.8], [0, 1, 0], [0, 0, -1], 2.0, 1.4,
                   PHOTO0 + 3, 0.003, (0.0, 0.0))
     return Scene(quads, build_atlas(texture_images(seed, source)), background=150.0,
-                 detail=(DETAIL, 8.0, 0.3))
+                 detail=(DETAIL, 8.0, 0.3), glossy=(PHOTO0 + 3,))

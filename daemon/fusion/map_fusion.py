@@ -1,0 +1,206 @@
+"""One tracker frame into the navigation filter: a new map's start and scale prior, the pose
+update with the autopilot's attitude, re-anchoring, re-alignment of a map that stopped fitting,
+and, until the map converges, its scale from the climb, the IMU's motion or the scene's height.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from daemon.fusion import measurements as m
+from daemon.fusion.alignment import AlignmentGate
+from daemon.fusion.attitude import AttitudeTrack
+from daemon.fusion.config import FusionConfig
+from daemon.fusion.output import attitude_noise, inflation
+from daemon.fusion.state import ANCHOR, LOG_SCALE, POS, NavFilter
+from vo.pose_optimizer import MAD_TO_SIGMA
+
+log = logging.getLogger("sdvl.fusion")
+TRACKED = ("good", "insufficient", "bad")
+RANGE_FRESH_S = 0.5  # a rangefinder reading this close to a frame measures its height
+MIN_SCENE_POINTS = 20  # matched map points for a median height
+
+
+@dataclass(frozen=True)
+class FrameInput:
+    """What the filter uses of a tracker frame."""
+
+    p_w: np.ndarray  # camera position in the tracker's world
+    R_w_b: np.ndarray  # body attitude in the tracker's world
+    cov: np.ndarray  # 6x6 position (tracker units) and rotation (rad), tracker world frame
+    quality: str
+    segment: int
+    scene_w: np.ndarray | None = None  # matched map points, tracker world (scene.py)
+    fresh: bool = False  # the first frame of its map (whose median depth is map_depth_units)
+
+
+def frame_input(result: object, R_c_b: np.ndarray, segment: int,
+                 position_factor: float = 1.0) -> FrameInput | None:
+    """The tracker pose as filter input, its position variances times `position_factor`
+    (correlations kept); None when it has no usable pose."""
+    if not result.has_pose or result.quality not in TRACKED:
+        return None
+    T = np.asarray(result.T_w_c, dtype=np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        return None
+    cov = np.zeros((6, 6))
+    if result.covariance is not None:
+        given = np.asarray(result.covariance, dtype=np.float64)
+        if given.shape == (6, 6) and np.all(np.isfinite(given)) and np.all(np.diag(given) >= 0):
+            cov = 0.5 * (given + given.T)
+    stretch = np.diag([np.sqrt(position_factor)] * 3 + [1.0] * 3)
+    return FrameInput(T[:3, 3].copy(), T[:3, :3] @ R_c_b, stretch @ cov @ stretch,
+                      result.quality, segment, getattr(result, "scene_w", None),
+                      bool(result.new_segment))
+
+
+@dataclass
+class Readings:
+    """The newest rangefinder distance and barometric altitude, (time, value) on our clock."""
+
+    range: tuple[float, float] | None = None
+    baro: tuple[float, float] | None = None
+
+    def fresh_range(self, t: float) -> float | None:
+        """The rangefinder's distance when a reading is within RANGE_FRESH_S of t."""
+        if self.range is None or abs(t - self.range[0]) > RANGE_FRESH_S:
+            return None
+        return self.range[1]
+
+
+class MapFusion:
+    """Frame updates of one NavFilter (kept by reference: the estimator restores it in place)."""
+
+    def __init__(self, cfg: FusionConfig, nav: NavFilter, attitude: AttitudeTrack,
+                 gate: AlignmentGate, readings: Readings, imu_fresh: Callable[[float], bool],
+                 camera_down: bool):
+        self.cfg, self.filter, self.attitude, self.gate = cfg, nav, attitude, gate
+        self.readings, self.imu_fresh, self.camera_down = readings, imu_fresh, camera_down
+
+    def fuse(self, t: float, frame: FrameInput) -> None:
+        """Fuse a tracker frame at the filter's time t: a new map starts (its anchor cloned from
+        the vehicle, its scale prior), else the pose and the autopilot's attitude update the
+        filter, the anchor moves along, and a map that keeps failing is re-aligned."""
+        f = self.filter
+        att = self.attitude.at(t)
+        if f.segment != frame.segment:
+            if att is None:
+                return
+            f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b,
+                            *self._scale_prior(t, frame, att.R_n_b))
+            f.segment = frame.segment
+            self.gate.restart()
+            return
+        self._climb_scale(t, frame, att)
+        self._accel_scale(t, frame, att)
+        factor = inflation(self.cfg, frame.quality)
+        imu = self.imu_fresh(t)  # without it the horizontal rows never touch the scale
+        coarse = (self.cfg.coarse_inflation if imu and np.sqrt(f.P[LOG_SCALE, LOG_SCALE])
+                  > self.cfg.coarse_scale_std else 1.0)
+        R_n_b = f.R_nom @ frame.R_w_b
+        attitude = (None if att is None
+                    else (att.R_n_b, frame.R_w_b, attitude_noise(self.cfg, frame.quality)))
+        if m.update_vo(f, frame.p_w, frame.cov, R_n_b, factor, imu, attitude,
+                       coarse):
+            if np.linalg.norm(f.x[POS] - f.x[ANCHOR]) > self.cfg.reanchor_distance_m:
+                f.reanchor(frame.p_w)
+            self._scene_height(t, frame, R_n_b)
+        elif f.rejections["vo"] >= self.cfg.reset_after_rejections and att is not None:
+            f.realigns += 1
+            self.gate.restart()
+            # the same map: its scale holds, only where it puts the camera now is re-anchored
+            f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, f.x[LOG_SCALE],
+                            float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE])))
+            f.rejections["vo"] = 0
+        if f.scale_source == "prior":
+            f.forget_scale()
+
+    def _climb_scale(self, t: float, frame: FrameInput, att: object) -> None:
+        """Pair the tracker's height with the barometer's; while the filter does not know the
+        scale from elsewhere (std above coarse_scale_std, or no IMU) and has not converged, take
+        it from their fit over the climb when that is surer (climb_scale.py)."""
+        f, cfg = self.filter, self.cfg
+        if self.readings.baro is None or abs(t - self.readings.baro[0]) > RANGE_FRESH_S:
+            return
+        f.climb.add(float((f.R_nom @ (frame.p_w - f.p_w0))[2]), *self.readings.baro)
+        std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
+        if att is None or f.converged or (std <= cfg.coarse_scale_std and self.imu_fresh(t)):
+            return
+        fit = f.climb.fit(cfg.climb_scale_min_m, cfg.baro_std_m)
+        if fit is not None:  # the map's own scale wanders over the climb (its walk, halved)
+            fit = (fit[0], float(np.hypot(fit[1], 0.5 * cfg.scale_walk_climb_per_sqrt_m
+                                          * np.sqrt(f.climb.climb_m(fit[0])))))
+        if fit is not None and fit[1] < std:
+            log.info("fusion: scale %.3g m/unit from the climb (+-%.1f%%)", np.exp(fit[0]),
+                     100 * fit[1])
+            f.rescale(frame.p_w, att.R_n_b, *fit)
+
+    def _accel_scale(self, t: float, frame: FrameInput, att: object) -> None:
+        """Pair the map's position with the IMU's double integral; until the map converges,
+        take the scale from their linear fit (accel_scale.py) once that is good to
+        coarse_scale_std: when it is surer than a scale not given with the map (the wide prior,
+        or an earlier fit), or more than 3 sigma away from the filter's (its linearised scale
+        has run off while its covariance shrank)."""
+        f, cfg = self.filter, self.cfg
+        if f.converged or not self.imu_fresh(t):
+            f.motion.interrupt()  # nothing left to fit, or no IMU to fit
+            return
+        f.motion.add_frame(t, frame.p_w, f.R_nom)
+        fit = f.motion.fit()
+        if att is None or fit is None or not fit[1] <= cfg.coarse_scale_std:
+            return
+        std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
+        surer = fit[1] < std and f.scale_source != "given"
+        if surer or abs(fit[0] - f.x[LOG_SCALE]) > 3.0 * np.hypot(fit[1], std):
+            log.info("fusion: scale %.3g m/unit from the IMU (+-%.1f%%), the filter had %.3g "
+                     "(+-%.1f%%)", np.exp(fit[0]), 100 * fit[1], f.scale, 100 * std)
+            f.rescale(frame.p_w, att.R_n_b, *fit)
+
+    def _scene_height(self, t: float, frame: FrameInput, R_n_b: np.ndarray) -> None:
+        """Fuse the map's height above the ground (its matched points' median depth along the
+        vertical) against the rangefinder's, once per terrain_correlation_m flown."""
+        f, cfg = self.filter, self.cfg
+        points = frame.scene_w
+        if not (cfg.use_scene_height and self.camera_down and f.has_ground
+                and points is not None and len(points) >= MIN_SCENE_POINTS
+                and self.readings.fresh_range(t) is not None):
+            return
+        if (f.scene_ne is not None
+                and np.linalg.norm(f.x[:2] - f.scene_ne) < cfg.terrain_correlation_m):
+            return
+        heights = (points - frame.p_w) @ f.R_nom[2]  # R_nom[2]: N's down
+        height = float(np.median(heights))
+        spread = MAD_TO_SIGMA * float(np.median(np.abs(heights - height)))
+        if height > 0 and np.isfinite(height) and m.update_scene(
+                f, np.log(height), float((R_n_b @ f.lever)[2]), spread / height):
+            f.scene_ne = f.x[:2].copy()
+
+    def _scale_prior(self, t: float, frame: FrameInput,
+                     R_n_b: np.ndarray) -> tuple[float, float | None]:
+        """ln(scale) and its std for a map the filter starts on: with a downward camera and a
+        fresh rangefinder reading, the reading over the map's height in its own units: the
+        median depth of the points the frame matched, or map_depth_units on the map's first
+        frame (the tracker scales a new map so); else the last map's scale or the configured
+        guess with the wide prior (None)."""
+        cfg, f = self.cfg, self.filter
+        units = self._map_height_units(frame, R_n_b @ frame.R_w_b.T)
+        if units is None and frame.fresh:
+            units = cfg.map_depth_units
+        distance = self.readings.fresh_range(t)
+        if units is not None and self.camera_down and distance is not None:
+            return float(np.log(distance / units)), cfg.range_scale_prior_std
+        return (float(f.x[LOG_SCALE]) if f.segment >= 0 else float(np.log(cfg.initial_scale)),
+                None)
+
+    @staticmethod
+    def _map_height_units(frame: FrameInput, R_n_w: np.ndarray) -> float | None:
+        """The camera's height above the points it matched, map units (None: too few)."""
+        points = frame.scene_w
+        if points is None or len(points) < MIN_SCENE_POINTS:
+            return None
+        height = float(np.median((points - frame.p_w) @ R_n_w[2]))
+        return height if height > 0 and np.isfinite(height) else None

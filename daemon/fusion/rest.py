@@ -1,0 +1,114 @@
+"""Whether the vehicle stands still, so the filter may fuse zero velocity (a ZUPT).
+
+On the ground, before the map exists, nothing but the IMU says where the vehicle is; integrated
+alone it drifts. The autopilot knows when a multirotor is on the ground: its land detector
+(EXTENDED_SYS_STATE.landed_state, ON_GROUND while disarmed and until take-off, ArduCopter's
+`ap.land_complete`, PX4's vehicle_land_detected). Without that message, a disarmed vehicle whose
+IMU has been quiet (specific force steady at g, rates near zero) stands still too; a disarmed
+one that is carried is not quiet. An armed vehicle is never taken to be still by its IMU alone:
+a smooth hover can look as quiet as the ground.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from daemon.fusion.config import FusionConfig
+
+GRAVITY = 9.80665
+MIN_SAMPLES = 5  # IMU samples in the window before it can be called quiet
+ONSET_S = 0.1  # a take-off shows in the IMU's mean over this long before the land detector
+ONSET_ACCEL = 0.1  # m/s^2: a thrust change that large is no ground vibration
+
+
+class RestDetector:
+    """Keeps the autopilot's flight state and the recent IMU and gyro samples (our clock)."""
+
+    def __init__(self, cfg: FusionConfig):
+        self.cfg = cfg
+        self.landed: tuple[float, bool] | None = None  # (time, on the ground)
+        self.armed: tuple[float, bool] | None = None
+        self.accel: deque[tuple[float, np.ndarray]] = deque()
+        self.rates: deque[tuple[float, float]] = deque()  # (time, |rate|)
+
+    def on_landed(self, t: float, on_ground: bool | None) -> None:
+        """The autopilot's land detector (None: it cannot tell now; the last word stands until
+        it times out)."""
+        if on_ground is not None:
+            self.landed = (t, on_ground)
+
+    def on_armed(self, t: float, armed: bool) -> None:
+        """HEARTBEAT's armed flag."""
+        self.armed = (t, armed)
+
+    def on_imu(self, t: float, accel: np.ndarray) -> None:
+        """A specific-force sample (body FRD, m/s^2)."""
+        self.accel.append((t, accel))
+        self._forget(self.accel, t)
+
+    def on_rates(self, t: float, rates: np.ndarray) -> None:
+        """Body rates (rad/s) of an ATTITUDE sample."""
+        self.rates.append((t, float(np.linalg.norm(rates))))
+        self._forget(self.rates, t)
+
+    def _forget(self, samples: deque, t: float) -> None:
+        while samples and samples[0][0] < t - 2 * self.cfg.rest_window_s:
+            samples.popleft()
+
+    def _fresh(self, state: tuple[float, bool] | None, t: float) -> bool | None:
+        if state is None or abs(t - state[0]) > self.cfg.flight_state_timeout_s:
+            return None
+        return state[1]
+
+    def state(self, t: float) -> bool | None:
+        """True when the vehicle stands still at time t, False when it may move, None when
+        that cannot be told yet (no flight state, or too few IMU samples while disarmed)."""
+        landed = self._fresh(self.landed, t)
+        if landed is not None:
+            return landed and not self.accelerating(t)
+        armed = self._fresh(self.armed, t)
+        if armed is None:
+            return None
+        if armed:
+            return False
+        return self.quiet(t) if self._window(self.accel, t) >= MIN_SAMPLES else None
+
+    def at_rest(self, t: float) -> bool:
+        """True when the vehicle stands still at time t."""
+        return self.state(t) is True
+
+    def _window(self, samples: deque, t: float) -> int:
+        start = t - self.cfg.rest_window_s
+        return sum(start <= s <= t for s, _ in samples)
+
+    def accelerating(self, t: float) -> bool:
+        """The IMU's mean specific force over the last ONSET_S departs from what it read just
+        before (its bias included) by more than ONSET_ACCEL beyond its noise: the vehicle is
+        leaving the ground, which the land detector says only later."""
+        recent = self._norms(t - ONSET_S, t)
+        before = self._norms(t - 2 * self.cfg.rest_window_s, t - ONSET_S, closed=False)
+        if len(recent) < 2:
+            return False
+        baseline = float(np.median(before)) if len(before) >= MIN_SAMPLES else GRAVITY
+        spread = float(np.std(before if len(before) >= MIN_SAMPLES else recent))
+        noise = 3.0 * spread / np.sqrt(len(recent))
+        return abs(float(np.mean(recent)) - baseline) > ONSET_ACCEL + noise
+
+    def _norms(self, start: float, end: float, closed: bool = True) -> np.ndarray:
+        return np.array([np.linalg.norm(a) for s, a in self.accel
+                         if start <= s and (s <= end if closed else s < end)])
+
+    def quiet(self, t: float) -> bool:
+        """The IMU (and gyro, when known) showed no motion over the window ending at t."""
+        cfg = self.cfg
+        start = t - cfg.rest_window_s
+        accel = np.array([a for s, a in self.accel if start <= s <= t])
+        if len(accel) < MIN_SAMPLES:
+            return False
+        norm = np.linalg.norm(accel, axis=1)
+        steady = (np.max(np.abs(norm - GRAVITY)) <= cfg.rest_accel_tol
+                  and float(np.max(np.std(accel, axis=0))) <= cfg.rest_accel_tol / 3)
+        rates = [r for s, r in self.rates if start <= s <= t]
+        return steady and (not rates or max(rates) <= cfg.rest_gyro_tol)
