@@ -37,11 +37,15 @@ def test_takes_off_in_guided_and_holds_loiter():
     assert flight.mode(LOITER) == ACCEPTED
     flight.fly(2.0)
     start = flight.truth()
-    drift = []
+    drift, touchdown = [], []
     for _ in range(10):
         flight.fly(1.0)
         drift.append(np.linalg.norm(flight.truth()[:2] - start[:2]))
+        touchdown.append(flight.model.ekf.touchdown_expected)
     assert max(drift) < 0.1  # a perfect companion: the hold is the controllers' own
+    # a hover demands no descent: the baro is fused as in flight (a float residue of the
+    # shaped climb rate read as descent flagged touchdown, and the height wandered)
+    assert not any(touchdown)
 
 
 def test_flies_a_guided_square_and_lands_and_disarms():

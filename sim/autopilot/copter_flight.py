@@ -35,6 +35,7 @@ HOVER_LEARN_TC_S = 10.0  # AP_MOTORS_THST_HOVER_TC
 LAND_TRIGGER_S, LAND_MAYBE_S = 1.0, 0.2
 LARGE_ANGLE = math.radians(15.0)  # LAND_CHECK_LARGE_ANGLE_CD
 ACCEL_MOVING = 3.0  # LAND_CHECK_ACCEL_MOVING, m/s^2
+FLT_EPSILON = 1.1920929e-07  # AP_Math is_zero(): a shaped climb rate decays to residue, not 0
 
 
 class LandDetector:
@@ -183,6 +184,14 @@ class CopterFlight:
     def _mix_is_min(self) -> bool:
         return self.throttle_mix < 1.25 * self.params.get("ATC_THR_MIX_MIN")
 
+    def desired_climb(self) -> float:
+        """The position controller's desired climb rate (m/s), zero within float residue: with
+        neutral sticks the jerk-limited target decays towards 0 without reaching it, and a
+        residue of -1e-12 m/s read as a descent demand flagged touchdown in every LOITER hold
+        (the baro then barely fused) and stopped hover learning."""
+        vel = float(self.pos.z.vel[0])
+        return 0.0 if abs(vel) < FLT_EPSILON else vel
+
     def _throttle_mix(self, dt: float) -> None:
         low = self.params.get("ATC_THR_MIX_MIN")
         if not self.armed or self.land.complete:
@@ -194,7 +203,7 @@ class CopterFlight:
                 self.attitude.T @ euler_to_matrix(*self.att.target))))
             large_request = math.hypot(*self.att.target[:2]) > LARGE_ANGLE
             moving = float(np.linalg.norm(self.land.accel)) > ACCEL_MOVING
-            demanded_descent = self.pos.z.vel[0] < 0.0
+            demanded_descent = self.desired_climb() < 0.0
             aggressive = (large_request and not self.mode.is_landing()) or \
                 error > 2 * LARGE_ANGLE or moving or not demanded_descent
             desired = 0.5 if aggressive else low
@@ -205,7 +214,7 @@ class CopterFlight:
 
     def _learn_hover(self, dt: float) -> None:
         if self.params.get("MOT_HOVER_LEARN") == 0 or not self.armed or self.land.complete \
-                or self.mode.manual_throttle or self.pos.z.vel[0] != 0.0:
+                or self.mode.manual_throttle or self.desired_climb() != 0.0:
             return
         roll, pitch, _ = self.att.target
         if self.att.throttle_out > 0 and abs(self.nav.velocity[2]) < 0.6 and \
@@ -227,8 +236,8 @@ class CopterFlight:
             self.takeoff_expected = False
         slow_horizontal = float(np.linalg.norm(self.pos.xy.vel)) <= 1.25 or \
             float(np.linalg.norm(self.nav.velocity[:2])) <= 1.25
-        descending = self.pos.z_active and self.pos.z.vel[0] < 0.0
-        slow_descent = descending and (self.pos.z.vel[0] >= -1.0
+        descending = self.pos.z_active and self.desired_climb() < 0.0
+        slow_descent = descending and (self.desired_climb() >= -1.0
                                        or abs(self.nav.velocity[2]) <= 0.6)
         self.touchdown_expected = self.armed and slow_horizontal and slow_descent
 
