@@ -134,7 +134,10 @@ def test_verdict_says_whose_height_wandered():
                                       heights=HeightErrors(0.62, 0.08)))
     assert loiter and line.startswith("READY for LOITER: drift 0.10 m; its height wandered "
                                       "0.60 m: the autopilot's own height was off by 0.62 m in "
-                                      "flight, ours by 0.08 m")
+                                      "flight, ours by 0.08 m -> it flies on its barometer")
+    ours = verdict(_scores(holds=[HoldScore("LOITER", 30.0, 0.1, 0.6)],
+                           heights=HeightErrors(0.1, 0.62)))[0]
+    assert "ours by 0.62 m" in ours and "barometer" not in ours  # no advice about its baro
 
 
 def test_seed_table_has_a_line_per_seed_and_the_worst_over_them():

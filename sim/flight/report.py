@@ -21,6 +21,10 @@ CORNER_LIMIT_M = 0.3
 HEIGHT_STEP_LIMIT_M = 0.1
 HEIGHT_HOLD_LIMIT_M = 0.3  # a hold's or a corner's height off by more is said in the verdict
 EXTNAV_LIMIT_S = 5.0
+# the barometer reads high under the rotors' wash (sim/autopilot/barometer.py); AP_Baro
+# subtracts BARO1_THST_SCALE Pa per unit throttle when it is set
+BARO_ADVICE = (" -> it flies on its barometer (EK3_SRC1_POSZ 1), which prop wash moves in "
+               "flight: fit BARO1_THST_SCALE from a hover log")
 DELAY_TOLERANCE_MS = 10.0  # a VISO_DELAY_MS this close to the measured latency is right
 # what a user changes when a step fails with the autopilot's words (first match)
 ADVICE = (
@@ -100,8 +104,9 @@ def _height_note(s: FlightScores) -> str:
     if drift <= HEIGHT_HOLD_LIMIT_M:
         return ""
     ap, ours = s.heights.autopilot_m, s.heights.ours_m
+    advice = (BARO_ADVICE if ap is not None and ap > HEIGHT_HOLD_LIMIT_M else "")
     return (f"; its height wandered {drift:.2f} m: the autopilot's own height was off by "
-            f"{_num(ap, '.2f')} m in flight, ours by {_num(ours, '.2f')} m")
+            f"{_num(ap, '.2f')} m in flight, ours by {_num(ours, '.2f')} m{advice}")
 
 
 def _advice(detail: str) -> str:
