@@ -3,8 +3,9 @@ flies the default mission with a near-perfect companion (truth plus 1 cm / 2 cm/
 30 Hz), on a virtual clock: GUIDED takeoff to 3 m, LOITER, a 2 m GUIDED square, LAND.
 
 Prints the CPU per simulated second, the CPU time per call of each stage (median, p95), and the
-flight's figures: true height after takeoff, LOITER drift, corner errors (in truth, where the
-compass's heading error turns the autopilot's frame, and in the EKF's frame), touchdown speed.
+flight's figures: true height after takeoff, LOITER drift (horizontal, vertical), corner errors
+(in truth, where the compass's heading error turns the autopilot's frame, and in the EKF's
+frame), touchdown speed.
 """
 
 from __future__ import annotations
@@ -59,12 +60,14 @@ def fly_mission(link: VirtualLink, gcs: GroundStation, companion: TruthCompanion
     out = {"takeoff height": float(vehicle.body.contact_z - vehicle.body.position[2])}
     gcs.mode(LOITER)
     companion.fly(2.0)
-    start = vehicle.body.position[:2].copy()
-    drift = 0.0
+    start = vehicle.body.position.copy()
+    drift = height_drift = 0.0
     for _ in range(int(loiter_s)):
         companion.fly(1.0)
-        drift = max(drift, float(np.linalg.norm(vehicle.body.position[:2] - start)))
+        drift = max(drift, float(np.linalg.norm(vehicle.body.position[:2] - start[:2])))
+        height_drift = max(height_drift, abs(float(vehicle.body.position[2] - start[2])))
     out["loiter drift max"] = drift
+    out["  its height's drift max"] = height_drift  # the barometer's prop wash settling in
     gcs.mode(GUIDED)
     errors, estimated = [], []
     for north, east in SQUARE:
