@@ -19,7 +19,10 @@ import cv2
 import numpy as np
 
 from calib.camera import CameraModel
-from daemon.frames import Frame, LatestSlot
+from daemon.frames import BadFrame, Frame, FrameCheck, FrameError, LatestSlot
+from daemon.health import Health
+from daemon.recordings import Recording
+from sdvl.errors import InputError
 
 log = logging.getLogger("sdvl.camera")
 DEVICE_STAMP_MAX_AGE_S = 0.5  # trust a driver's buffer stamp only if it is this recent
@@ -33,6 +36,9 @@ class FrameSource(Protocol):
     camera: CameraModel | None  # intrinsics when the source knows them (datasets, test pattern)
     live: bool  # True: drop the oldest frame when tracking is behind; False: wait for it
     finite: bool  # True: the end of the stream ends the service; False: reopen and go on
+    # True: a device whose open or read can hang (watched by camera.stall_timeout_s); sources
+    # without the attribute are files or generators, which are slow at worst (a renderer)
+    blocks: bool
 
     def open(self) -> None:
         """Open the device or file; OSError when it is not there (the caller retries)."""
@@ -82,6 +88,7 @@ class OpenCVSource:
         self.spec, self.size, self.fps = spec, (width, height), fps
         self.is_file = Path(spec).is_file() and not spec.startswith("/dev/")
         self.finite = self.is_file
+        self.blocks = not self.is_file
         self.live = realtime or not self.is_file
         self._pacer = Pacer() if self.is_file and realtime else None
         self._cap: cv2.VideoCapture | None = None
@@ -137,7 +144,7 @@ class SequenceSource:
     """Anything with `.frames()` yielding (t, grey image) and a `.camera` (e.g. a
     sim.sequence.Sequence): played at its timestamps or as fast as tracking takes frames."""
 
-    finite = True
+    finite, blocks = True, False
 
     def __init__(self, sequence: object, realtime: bool = True, name: str | None = None):
         self.sequence = sequence
@@ -163,12 +170,40 @@ class SequenceSource:
         """Nothing to release; the iterator continues if the capture thread reopens."""
 
 
+class RecordingSource(SequenceSource):
+    """Recorded frames on disk (daemon/recordings.py) played as a camera. Each image is read
+    when it is due; one that is missing or cannot be decoded is a FrameError, so the stream
+    goes on with the next (a folder renamed during a run gives missing frames until it is
+    back)."""
+
+    sequence: Recording
+
+    def open(self) -> None:
+        if self._frames is None:
+            self._frames = zip(self.sequence.timestamps, self.sequence.files, strict=True)
+
+    def read(self) -> tuple[float, float, np.ndarray] | None:
+        item = next(self._frames, None)
+        if item is None:
+            return None
+        t, path = float(item[0]), item[1]
+        t_capture = self._pacer.wait(t) if self._pacer else time.monotonic()
+        try:
+            data = np.fromfile(path, np.uint8)
+        except OSError as exc:
+            raise FrameError(BadFrame.MISSING, f"{path}: {exc.strerror}") from None
+        image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
+        if image is None:
+            raise FrameError(BadFrame.UNREADABLE, str(path))
+        return t, t_capture, image
+
+
 class TestPatternSource:
     """A textured scene seen by a camera drifting on a small circle: frames at `fps` with no
     hardware, for bring-up, benchmarks and tests."""
 
     __test__ = False  # not a pytest class
-    live, finite = True, False
+    live, finite, blocks = True, False, False
 
     def __init__(self, width: int = 320, height: int = 240, fps: float = 30.0, seed: int = 7):
         rng = np.random.default_rng(seed)
@@ -202,25 +237,49 @@ class TestPatternSource:
 
 
 class CaptureThread(threading.Thread):
-    """Reads a source into the slot; reopens it with back-off when it fails or disappears."""
+    """Reads a source into the slot; reopens it with back-off when it fails or disappears.
+
+    Input never stops it: a frame the source cannot produce (FrameError) or one the tracker
+    cannot take (FrameCheck) is counted and skipped. What the service watches: `busy` (the
+    source call in progress and since when, to see a device that never answers), the time of
+    the last good frame and of the last read, and `error` when the thread stopped on a size
+    the calibration does not fit (InputError) or on a bug."""
 
     def __init__(self, source: FrameSource, slot: LatestSlot, backoff: tuple[float, float],
-                 on_state: Callable[[str], None] = lambda state: None):
+                 on_state: Callable[[Health], None] = lambda state: None,
+                 check: FrameCheck | None = None):
         super().__init__(name="capture", daemon=True)
         self.source, self.slot, self.backoff = source, slot, backoff
         self.on_state = on_state
+        self.check = check or FrameCheck()
         self.stopping = threading.Event()
         self.frames = 0
-        self.finished = False
+        self.error: BaseException | None = None
+        self.busy: tuple[str, float] | None = None  # ("open" or "read", monotonic start)
+        self.watch_stalls = getattr(source, "blocks", False)
+        self.last_frame_t: float | None = None  # monotonic time of the last good frame
+        self.last_read_t: float | None = None  # ... of the last read that gave a frame, bad or not
 
     def run(self) -> None:
+        try:
+            self._run()
+        except InputError as exc:  # the calibration does not fit the frames: config
+            self.error = exc
+        except Exception as exc:  # a bug: the service sees the thread end and restarts
+            log.exception("capture thread failed")
+            self.error = exc
+        finally:
+            self.busy = None
+            self.slot.close()
+
+    def _run(self) -> None:
         delay = self.backoff[0]
         while not self.stopping.is_set():
             try:
-                self.source.open()
-            except OSError as exc:
+                self._call("open", self.source.open)
+            except Exception as exc:  # OSError: not there; anything else: the driver's fault
                 log.warning("camera %s: %s; retrying in %.1f s", self.source.name, exc, delay)
-                self.on_state("no camera")
+                self.on_state(Health.NO_CAMERA)
                 self.stopping.wait(delay)
                 delay = min(2 * delay, self.backoff[1])
                 continue
@@ -230,18 +289,31 @@ class CaptureThread(threading.Thread):
             self.source.close()
             if ended:
                 break
-        self.finished = True
-        self.slot.close()
+
+    def _call(self, what: str, fn: Callable[[], object]) -> object:
+        """fn() with `busy` saying what is in progress since when (for a device that can
+        hang; a slow renderer or file is not a blocked camera)."""
+        self.busy = (what, time.monotonic()) if self.watch_stalls else None
+        try:
+            return fn()
+        finally:
+            self.busy = None
 
     def _pump(self) -> bool:
         """Move frames into the slot until stop, failure (False) or a finite end (True)."""
         while not self.stopping.is_set():
             try:
-                item = self.source.read()
+                item = self._call("read", self.source.read)
             except OSError as exc:
                 log.warning("camera %s: %s; reopening", self.source.name, exc)
-                self.on_state("no camera")
+                self.on_state(Health.NO_CAMERA)
                 return False
+            except FrameError as exc:
+                self._bad(exc.kind, exc.detail)
+                continue
+            except Exception as exc:  # a decoder or driver error on one frame
+                self._bad(BadFrame.UNREADABLE, f"{type(exc).__name__}: {exc}")
+                continue
             if item is None:
                 if self.source.finite:
                     log.info("camera %s: end of stream after %d frames", self.source.name,
@@ -249,11 +321,20 @@ class CaptureThread(threading.Thread):
                     return True
                 return False
             t_source, t_capture, image = item
+            self.last_read_t = time.monotonic()
+            if not self.check.check(t_source, image):
+                continue
             if not self.slot.put(Frame(self.frames, t_source, t_capture, image),
                                  wait=not self.source.live):
                 return True
+            self.last_frame_t = time.monotonic()
             self.frames += 1
         return True
+
+    def _bad(self, kind: BadFrame, detail: str) -> None:
+        """A read that returned no usable frame (the source is there: not a lost camera)."""
+        self.last_read_t = time.monotonic()
+        self.check.bad(kind, detail)
 
     def stop(self) -> None:
         """Ask the thread to finish; the slot is closed so a waiting put returns."""

@@ -8,18 +8,24 @@ handed unchanged to `vo.config.TrackerConfig.from_dict`, which validates it.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import serial
+
 from daemon.fusion.config import FusionConfig
-from daemon.link_url import parse_link_url
+from daemon.link_url import LinkKind, parse_link_url
 from sdvl.errors import InputError
-from sdvl.tables import dataclass_from_table, read_toml, suggest
+from sdvl.tables import bounded, check_fields, dataclass_from_table, one_of, read_toml, suggest
 
 EXAMPLE_CONFIG = Path(__file__).with_name("example_config.toml")
 MOUNTING_PRESETS = ("down", "forward", "custom")
 OUTPUTS = ("odometry", "vision_position", "both")
 LOG_LEVELS = ("debug", "info", "warning", "error")
+MAX_IMAGE_SIDE = 8192
+# POSIX rates (pyserial's list) and ArduPilot's SERIALn_BAUD values that are not among them
+BAUD_RATES = frozenset(serial.Serial.BAUDRATES) | {111100, 256000}
 
 
 @dataclass(frozen=True)
@@ -28,23 +34,25 @@ class CameraConfig:
 
     source: str = "0"
     calibration: str = ""
-    width: int = 0
-    height: int = 0
-    fps: float = 30.0
+    width: int = bounded(0, 0, MAX_IMAGE_SIDE, why="0 keeps the device's default")
+    height: int = bounded(0, 0, MAX_IMAGE_SIDE, why="0 keeps the device's default")
+    fps: float = bounded(30.0, above=0, high=1000)
     realtime: bool = True
-    reconnect_min_s: float = 0.5
-    reconnect_max_s: float = 8.0
+    reconnect_min_s: float = bounded(0.5, above=0, high=3600)
+    reconnect_max_s: float = bounded(8.0, above=0, high=3600)
+    # longer than a slow device's first frame (a few seconds), shorter than WatchdogSec
+    stall_timeout_s: float = bounded(8.0, above=0, high=3600)
 
 
 @dataclass(frozen=True)
 class MountingConfig:
     """How the camera sits on the vehicle, and the scale applied to VO positions."""
 
-    preset: str = "down"
-    roll_deg: float = 0.0
-    pitch_deg: float = 0.0
-    yaw_deg: float = 0.0
-    scale: float = 1.0
+    preset: str = one_of("down", MOUNTING_PRESETS)
+    roll_deg: float = bounded(0.0, -360, 360)
+    pitch_deg: float = bounded(0.0, -360, 360)
+    yaw_deg: float = bounded(0.0, -360, 360)
+    scale: float = bounded(1.0, above=0, high=1e6, why="metres per VO unit")
 
 
 @dataclass(frozen=True)
@@ -52,16 +60,19 @@ class MavlinkConfig:
     """The autopilot link and what is sent on it."""
 
     link: str = "/dev/serial0,921600"
-    system_id: int = 1
-    component_id: int = 197
-    output: str = "odometry"
+    system_id: int = bounded(1, 1, 255)
+    component_id: int = bounded(197, 1, 255)
+    autopilot_system_id: int = bounded(0, 0, 255, why="0: the first autopilot heard")
+    autopilot_component_id: int = bounded(0, 0, 255, why="0: the component of its HEARTBEAT")
+    output: str = one_of("odometry", OUTPUTS)
     vision_speed: bool = True
-    max_rate_hz: float = 50.0
-    max_latency_s: float = 0.2
-    heartbeat_timeout_s: float = 3.0
-    statustext_interval_s: float = 1.0
-    position_std_m: float = 0.1
-    angle_std_rad: float = 0.05
+    max_rate_hz: float = bounded(50.0, above=0, high=50,
+                                 why="autopilots use at most one sample per 20 ms")
+    max_latency_s: float = bounded(0.2, above=0, high=10)
+    heartbeat_timeout_s: float = bounded(3.0, above=0, high=600)
+    statustext_interval_s: float = bounded(1.0, above=0, high=3600)
+    position_std_m: float = bounded(0.1, above=0, high=1000)
+    angle_std_rad: float = bounded(0.05, above=0, high=math.pi)
 
 
 @dataclass(frozen=True)
@@ -69,18 +80,18 @@ class OriginConfig:
     """The EKF origin the service gives an autopilot that has none (no GPS)."""
 
     enabled: bool = False
-    latitude_deg: float = 0.0
-    longitude_deg: float = 0.0
-    altitude_m: float = 0.0
-    resend_interval_s: float = 1.0
+    latitude_deg: float = bounded(0.0, -90, 90)
+    longitude_deg: float = bounded(0.0, -180, 180)
+    altitude_m: float = bounded(0.0, -1000, 10000, why="metres above mean sea level")
+    resend_interval_s: float = bounded(1.0, above=0, high=3600)
 
 
 @dataclass(frozen=True)
 class ServiceConfig:
     """Logging, the systemd status line, threads."""
 
-    log_level: str = "info"
-    status_interval_s: float = 5.0
+    log_level: str = one_of("info", LOG_LEVELS)
+    status_interval_s: float = bounded(5.0, above=0, high=3600)
     mapping_thread: bool = True
 
 
@@ -109,38 +120,27 @@ def _build_section(name: str, cls: type, table: object, path: Path | None) -> ob
 
 
 def _check_ranges(cfg: Config, path: Path | None) -> None:
-    """Values that are the right type but make no sense."""
+    """Values that are each in range but make no sense together, and the link URL."""
     def need(ok: bool, message: str) -> None:
         if not ok:
             raise InputError(message, path)
 
-    need(cfg.mounting.preset in MOUNTING_PRESETS,
-         f"mounting.preset must be one of {', '.join(MOUNTING_PRESETS)}")
+    for name in SECTIONS:
+        check_fields(getattr(cfg, name), name, path)
     angles = (cfg.mounting.roll_deg, cfg.mounting.pitch_deg, cfg.mounting.yaw_deg)
     need(cfg.mounting.preset == "custom" or not any(angles),
          "mounting.roll_deg/pitch_deg/yaw_deg are used only with mounting.preset = \"custom\"")
-    need(cfg.mounting.scale > 0, "mounting.scale must be > 0")
+    need(cfg.camera.reconnect_min_s <= cfg.camera.reconnect_max_s,
+         "camera.reconnect_min_s must be <= camera.reconnect_max_s")
+    need((cfg.camera.width == 0) == (cfg.camera.height == 0),
+         "camera.width and camera.height are set together (both 0: the device's default size)")
     try:
-        parse_link_url(cfg.mavlink.link)
+        link = parse_link_url(cfg.mavlink.link)
     except InputError as exc:
         raise InputError(exc.message, path) from None
-    need(cfg.mavlink.output in OUTPUTS, f"mavlink.output must be one of {', '.join(OUTPUTS)}")
-    need(0 < cfg.mavlink.max_rate_hz <= 50,
-         "mavlink.max_rate_hz must be in (0, 50]: autopilots use at most one sample per 20 ms")
-    need(1 <= cfg.mavlink.system_id <= 255, "mavlink.system_id must be 1..255")
-    need(1 <= cfg.mavlink.component_id <= 255, "mavlink.component_id must be 1..255")
-    for key in ("max_latency_s", "heartbeat_timeout_s", "statustext_interval_s",
-                "position_std_m", "angle_std_rad"):
-        need(getattr(cfg.mavlink, key) > 0, f"mavlink.{key} must be > 0")
-    need(cfg.camera.fps > 0, "camera.fps must be > 0")
-    need(0 < cfg.camera.reconnect_min_s <= cfg.camera.reconnect_max_s,
-         "camera.reconnect_min_s must be > 0 and <= camera.reconnect_max_s")
-    need(-90 <= cfg.origin.latitude_deg <= 90, "origin.latitude_deg must be -90..90")
-    need(-180 <= cfg.origin.longitude_deg <= 180, "origin.longitude_deg must be -180..180")
-    need(cfg.origin.resend_interval_s > 0, "origin.resend_interval_s must be > 0")
-    need(cfg.service.log_level in LOG_LEVELS,
-         f"service.log_level must be one of {', '.join(LOG_LEVELS)}")
-    need(cfg.service.status_interval_s > 0, "service.status_interval_s must be > 0")
+    need(link.kind != LinkKind.SERIAL or link.baud in BAUD_RATES,
+         f"mavlink.link '{cfg.mavlink.link}': {link.baud} is not a serial baud rate; use the "
+         "autopilot port's SERIALn_BAUD rate, e.g. 57600, 115200, 460800 or 921600")
 
 
 def config_from_dict(data: dict, path: Path | None = None) -> Config:
@@ -182,3 +182,14 @@ def replace(cfg: Config, **sections: dict) -> Config:
     _check_ranges(out, None)
     return out
 
+
+
+def changed_keys(old: Config, new: Config) -> list[str]:
+    """'section.key' for every setting that differs between two configs."""
+    out = [f"tracker.{k}" for k in sorted(set(old.tracker) | set(new.tracker))
+           if old.tracker.get(k) != new.tracker.get(k)]
+    for name in SECTIONS:
+        a, b = getattr(old, name), getattr(new, name)
+        out += [f"{name}.{f.name}" for f in dataclasses.fields(a)
+                if getattr(a, f.name) != getattr(b, f.name)]
+    return out

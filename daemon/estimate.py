@@ -20,9 +20,10 @@ import numpy as np
 
 from daemon.config import MavlinkConfig, MountingConfig
 from daemon.mounting import body_from_camera, rotation_vector, rotation_zyx
+from vo.result import Quality
 
-QUALITY_PERCENT = {"good": 100, "insufficient": 50, "bad": 10}
-INFLATION = {"good": 1.0, "insufficient": 4.0, "bad": 25.0}  # covariance factor per quality
+QUALITY_PERCENT = {Quality.GOOD: 100, Quality.INSUFFICIENT: 50, Quality.BAD: 10}
+INFLATION = {Quality.GOOD: 1.0, Quality.INSUFFICIENT: 4.0, Quality.BAD: 25.0}  # of the covariance
 
 
 @dataclass(frozen=True)
@@ -40,7 +41,7 @@ class VisionEstimate:
     velocity_covariance: np.ndarray  # 6x6, order vx vy vz (body) rollspeed pitchspeed yawspeed
     quality: int  # ODOMETRY quality percent: 1 worst .. 100 best
     reset_counter: int  # 0..255, changes on every discontinuity
-    state: str  # tracker quality string
+    state: Quality  # the tracker's quality of the frame
 
 
 class Estimator(Protocol):
@@ -53,6 +54,10 @@ class Estimator(Protocol):
 
     def on_autopilot_message(self, msg: object) -> None:
         """Consume one decoded MAVLink message from the autopilot (asyncio thread)."""
+
+    def bridge(self, t: float) -> VisionEstimate | None:
+        """An estimate for time t when no frame has given one for a while (asyncio thread);
+        None when nothing but a frame could give one."""
 
 
 def _finite(*arrays: np.ndarray) -> bool:
@@ -72,6 +77,10 @@ class PassThroughEstimator:
         self._anchor: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # R_L_w, p_w0, p_L0
         self._last: VisionEstimate | None = None
         self._previous: tuple[np.ndarray, np.ndarray, float | None] = (np.zeros(3), np.eye(3), None)
+
+    def bridge(self, t: float) -> VisionEstimate | None:
+        """Nothing between frames: without an IMU filter there is nothing to carry a pose."""
+        return None
 
     def on_autopilot_message(self, msg: object) -> None:
         """Keeps the latest ATTITUDE roll and pitch to level the local frame of a new segment."""

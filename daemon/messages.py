@@ -13,18 +13,6 @@ from daemon.mounting import euler_zyx, quaternion_wxyz
 MAV_CMD_DO_SET_GLOBAL_ORIGIN = 611  # newer than the pymavlink 'common' dialect in use
 _UPPER = np.triu_indices(6)
 
-# tracker state -> HEARTBEAT system_status (the companion-status convention PX4 documents)
-SYSTEM_STATUS = {
-    "starting": mavlink2.MAV_STATE_BOOT,
-    "initializing": mavlink2.MAV_STATE_STANDBY,
-    "good": mavlink2.MAV_STATE_ACTIVE,
-    "insufficient": mavlink2.MAV_STATE_CRITICAL,
-    "bad": mavlink2.MAV_STATE_CRITICAL,
-    "lost": mavlink2.MAV_STATE_FLIGHT_TERMINATION,
-    "no camera": mavlink2.MAV_STATE_FLIGHT_TERMINATION,
-}
-
-
 def usec(t: float) -> int:
     """Seconds on the monotonic clock -> integer microseconds."""
     return round(t * 1e6)
@@ -62,7 +50,8 @@ def vision_speed(mav: mavlink2.MAVLink, e: object) -> object:
         covariance=[float(v) for v in cov.ravel()], reset_counter=e.reset_counter)
 
 
-def heartbeat(mav: mavlink2.MAVLink, state: str) -> object:
-    """HEARTBEAT of a companion: ONBOARD_CONTROLLER, autopilot INVALID, status from tracking."""
+def heartbeat(mav: mavlink2.MAVLink, system_status: int) -> object:
+    """HEARTBEAT of a companion: ONBOARD_CONTROLLER, autopilot INVALID, and its health as a
+    MAV_STATE (daemon/health.py)."""
     return mav.heartbeat_encode(mavlink2.MAV_TYPE_ONBOARD_CONTROLLER,
-                                mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, SYSTEM_STATUS[state])
+                                mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, system_status)

@@ -15,6 +15,7 @@ import numpy as np
 
 from daemon.config import MountingConfig
 from daemon.mounting import body_from_camera, euler_zyx
+from vo.result import Quality
 
 AXES = (("FORWARD", "BACK"), ("RIGHT", "LEFT"), ("DOWN", "UP"))
 
@@ -55,7 +56,7 @@ class MountTest:
         """The reading for one tracker FrameResult, or None (no pose, or too little motion)."""
         if result.new_segment:
             self._start = None
-        if not result.has_pose or result.quality not in ("good", "insufficient"):
+        if not result.has_pose or result.quality not in (Quality.GOOD, Quality.INSUFFICIENT):
             return None
         T = np.asarray(result.T_w_c, dtype=np.float64)
         if not np.all(np.isfinite(T)):

@@ -1,23 +1,32 @@
-"""`sdvl run --config FILE`: the companion service (what systemd starts)."""
+"""`sdvl run --config FILE`: the companion service (what systemd starts).
+
+The signal handlers are installed first, before the slow imports (OpenCV, numba, the tracker),
+so SIGTERM at any moment is a clean stop (exit code 0), and STOPPING=1 reaches systemd whichever
+way the process ends. Exit codes: systemd/README.md.
+"""
 
 from __future__ import annotations
 
 import argparse
 import asyncio
 import logging
-import signal
+import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, NoReturn
 
-from calib.camera import CameraModel
-from calib.camera_yaml import load_camera
-from daemon.camera import FrameSource, OpenCVSource, SequenceSource, TestPatternSource
-from daemon.config import CameraConfig, Config, load_config
-from daemon.frames import Frame
-from daemon.recordings import open_recording
-from daemon.service import Service
-from sdvl.errors import InputError
+from daemon.sdnotify import Notifier
+from daemon.signals import EarlySignals, Stopped
+
+if TYPE_CHECKING:  # the real imports are slow and come after the signal handlers
+    from calib.camera import CameraModel
+    from daemon.camera import FrameSource
+    from daemon.config import CameraConfig, Config
+    from daemon.frames import Frame
+    from daemon.service import Service
+
+log = logging.getLogger("sdvl.service")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,31 +36,54 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def setup_logging(level: str) -> None:
-    """One line per event on stderr; journald adds time and unit."""
-    logging.basicConfig(stream=sys.stderr, level=level.upper(), force=True,
-                        format="%(levelname)s %(name)s: %(message)s")
+    """One line per event on stderr; journald adds time and unit; a full disk drops lines
+    (counted) rather than the service."""
+    from daemon import logs
+
+    logs.setup(level)
+
+
+def quiet_opencv() -> None:
+    """OpenCV's own warnings off: a bad frame is counted and logged once by the service, not
+    once per frame by the decoder."""
+    import cv2
+
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
 
 
 def open_source(cfg: CameraConfig) -> FrameSource:
     """The frame source a camera.source string names."""
+    from daemon.camera import OpenCVSource, RecordingSource, TestPatternSource
+    from daemon.recordings import open_recording
+
     if cfg.source == "testpattern":
         return TestPatternSource(cfg.width or 320, cfg.height or 240, cfg.fps)
     if Path(cfg.source).is_dir():
-        return SequenceSource(open_recording(cfg.source, cfg.fps), realtime=cfg.realtime)
+        return RecordingSource(open_recording(cfg.source, cfg.fps), realtime=cfg.realtime)
     return OpenCVSource(cfg.source, cfg.width, cfg.height, cfg.fps, cfg.realtime)
 
 
 def camera_model(cfg: CameraConfig, source: FrameSource) -> CameraModel:
-    """Intrinsics from camera.calibration, else the ones the source brings."""
+    """Intrinsics from camera.calibration, else the ones the source brings; a configured
+    capture size the calibration does not fit is an InputError now, not after the start."""
+    from calib.camera_yaml import load_camera
+    from sdvl.errors import InputError
+
     if cfg.calibration:
-        return load_camera(cfg.calibration)
-    if source.camera is None:
+        camera = load_camera(cfg.calibration)
+    elif source.camera is None:
         raise InputError(f"camera.calibration: set the path of a camera.yaml for '{cfg.source}'")
-    return source.camera
+    else:
+        camera = source.camera
+    if cfg.width and cfg.height:
+        fit_camera(camera, cfg.width, cfg.height)
+    return camera
 
 
 def fit_camera(camera: CameraModel, width: int, height: int) -> CameraModel:
     """The model for frames of this size: the calibration itself or uniformly scaled."""
+    from sdvl.errors import InputError
+
     if (camera.width, camera.height) == (width, height):
         return camera
     factor = width / camera.width
@@ -64,6 +96,8 @@ def fit_camera(camera: CameraModel, width: int, height: int) -> CameraModel:
 def tracker_factory(config: Config, camera: CameraModel) -> Callable[[Frame], object]:
     """Builds the tracker on the first frame (its results carry the matched map points for
     fusion); tracker options are validated now."""
+    from sdvl.errors import InputError
+
     try:
         from vo.config import TrackerConfig
         from vo.tracker import Tracker
@@ -81,18 +115,62 @@ def tracker_factory(config: Config, camera: CameraModel) -> Callable[[Frame], ob
     return make
 
 
-async def serve(service: Service) -> int:
-    """Run the service with SIGTERM/SIGINT stopping it cleanly."""
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        loop.add_signal_handler(sig, service.stop)
+async def serve(service: Service, signals: EarlySignals | None = None,
+                reread: Callable[[], Config] | None = None) -> int:
+    """Run the service; SIGTERM/SIGINT stop it cleanly, SIGHUP rereads the configuration
+    (`reread`, an InputError keeps the running one)."""
+    from sdvl.errors import InputError
+
+    def reload() -> None:
+        service.notifier.reloading()
+        try:
+            service.reload(reread())
+        except InputError as exc:
+            log.error("SIGHUP: %s; the running configuration is kept", exc)
+        service.notifier.notify("READY=1")
+
+    (signals or EarlySignals()).hand_over(asyncio.get_running_loop(), service.stop, reload)
     return await service.run()
 
 
 def run(args: argparse.Namespace) -> int:
-    """Entry point of `sdvl run`."""
+    """Entry point of `sdvl run`; once the service ran, the process ends here (exit_now)."""
+    notifier = Notifier()
+    signals = EarlySignals()
+    signals.install()
+    try:
+        code = _start(args, signals, notifier)
+    except Stopped:  # SIGTERM/SIGINT while starting: a clean stop
+        return 0
+    finally:
+        signals.finish()
+        notifier.stopping()
+    exit_now(code)
+
+
+def _start(args: argparse.Namespace, signals: EarlySignals, notifier: Notifier) -> int:
+    from daemon import numba_cache
+    from daemon.config import load_config
+    from daemon.service import Service, prefer_handoffs
+
     config = load_config(args.config)
     setup_logging(config.service.log_level)
+    quiet_opencv()
     source = open_source(config.camera)
-    make_tracker = tracker_factory(config, camera_model(config.camera, source))
-    return asyncio.run(serve(Service(config, source, make_tracker)))
+    camera = camera_model(config.camera, source)
+    numba_cache.prepare()
+    service = Service(config, source, tracker_factory(config, camera), notifier=notifier,
+                      size_ok=lambda width, height: fit_camera(camera, width, height))
+    prefer_handoffs()
+    return asyncio.run(serve(service, signals, lambda: load_config(args.config)))
+
+
+def exit_now(code: int) -> NoReturn:
+    """End the process once the service has stopped (STOPPING=1 sent, logs flushed), without
+    the interpreter's final garbage collection: freeing the tracker's maps and numba's
+    compiled kernels took 3-5 s on a loaded 2-core machine, close to systemd's TimeoutStopSec
+    (5 s), after which it kills the service and marks it failed."""
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)

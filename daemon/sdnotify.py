@@ -9,6 +9,7 @@ from __future__ import annotations
 import logging
 import os
 import socket
+import time
 
 log = logging.getLogger("sdvl.systemd")
 
@@ -23,6 +24,7 @@ class Notifier:
         watchdog_usec = int(env.get("WATCHDOG_USEC", "0") or 0)
         self.watchdog_interval_s = watchdog_usec / 2e6 if watchdog_usec > 0 else None
         self._sock: socket.socket | None = None
+        self.stopping_sent = False
         if self.address:
             self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
 
@@ -40,6 +42,16 @@ class Notifier:
             log.warning("sd_notify failed: %s", exc)
             return False
         return True
+
+    def stopping(self) -> None:
+        """STOPPING=1, once, whichever way the process ends."""
+        if not self.stopping_sent:
+            self.stopping_sent = True
+            self.notify("STOPPING=1")
+
+    def reloading(self) -> None:
+        """RELOADING=1 with the monotonic time systemd wants with it; READY=1 ends it."""
+        self.notify("RELOADING=1", f"MONOTONIC_USEC={time.monotonic_ns() // 1000}")
 
     def close(self) -> None:
         if self._sock is not None:

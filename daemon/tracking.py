@@ -6,14 +6,21 @@ import logging
 import math
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 
 from daemon.estimate import Estimator, VisionEstimate
 from daemon.frames import Frame, LatestSlot
+from sdvl.errors import InputError
 
 log = logging.getLogger("sdvl.tracking")
 HANDOFF_WAIT_S = 0.05  # the mapping thread waits at most this long for a frame's handoff
+MAX_FAILED_FRAMES = 30  # failures in a row (a second of frames) before the thread gives up
+# one frame taking longer than this is a hang: far above a starved CPU's frame time, and the
+# first frame may compile every kernel (minutes on a Raspberry Pi without the numba cache)
+TRACK_HUNG_S = 120.0
+FIRST_FRAME_HUNG_S = 900.0
 
 
 @dataclass(frozen=True)
@@ -56,7 +63,13 @@ class HandoffGate:
 
 class TrackingThread(threading.Thread):
     """Runs the tracker on the newest frames; the tracker is built on the first frame (its
-    size fixes the camera model) by `make_tracker(frame)`."""
+    size fixes the camera model) by `make_tracker(frame)`.
+
+    An exception from the tracker on one frame is logged with its traceback once per kind and
+    counted; the tracker is then rebuilt (a new map: reset_counter changes). One from the
+    estimator loses that frame's estimate. Only MAX_FAILED_FRAMES failures in a row end the
+    thread (the service then exits for systemd to restart it); building the tracker is
+    allowed to fail with InputError (the calibration), which ends the service with code 2."""
 
     def __init__(self, slot: LatestSlot, make_tracker: Callable[[Frame], object],
                  estimator: Estimator, deliver: Callable[[TrackedFrame], None],
@@ -68,17 +81,22 @@ class TrackingThread(threading.Thread):
         self.gate = HandoffGate()
         self.tracker = None
         self.error: BaseException | None = None
+        self.failures: Counter[str] = Counter()  # "tracker: ValueError" -> count
+        self.frames = 0
+        self._failed_in_row = 0
+        self._busy_since: float | None = None  # monotonic start of the frame in the tracker
 
     def run(self) -> None:
         try:
             self._loop()
+        except InputError as exc:  # reported by the service, which stops with code 2
+            self.error = exc
         except Exception as exc:  # reported to the service, which stops with an error
             log.exception("tracking failed")
             self.error = exc
         finally:
             self.gate.done(math.inf)  # no more handoffs: mapping finishes its queue unheld
-            if self.tracker is not None:
-                self.tracker.close()
+            self._close_tracker()
             self.on_end()
 
     def _loop(self) -> None:
@@ -92,14 +110,61 @@ class TrackingThread(threading.Thread):
                 continue
             if self.tracker is None:
                 self.tracker = self.make_tracker(frame)
-            self._gate_mapping()
-            t_start = time.monotonic()
-            start = time.perf_counter()
+            tracked = self._track(frame)
+            if tracked is not None:
+                self.deliver(tracked)
+
+    def _track(self, frame: Frame) -> TrackedFrame | None:
+        """Track one frame and estimate; None when the tracker failed on it."""
+        self._gate_mapping()
+        t_start = self._busy_since = time.monotonic()
+        start = time.perf_counter()
+        try:
             result = self.tracker.process(frame.image, frame.t_source)
-            track_s = time.perf_counter() - start
+        except Exception as exc:
+            self._failed("tracker", exc)
+            self._close_tracker()  # rebuilt on the next frame: a new map
+            return None
+        finally:
+            self._busy_since = None
+        track_s = time.perf_counter() - start
+        self.frames += 1
+        try:
             estimate = self.estimator.on_frame(result, frame.t_capture)
-            self.deliver(TrackedFrame(frame.index, frame.t_source, frame.t_capture, result,
-                                      estimate, t_start, track_s, time.monotonic()))
+            self._failed_in_row = 0
+        except Exception as exc:
+            self._failed("estimator", exc)
+            estimate = None
+        return TrackedFrame(frame.index, frame.t_source, frame.t_capture, result,
+                            estimate, t_start, track_s, time.monotonic())
+
+    def _failed(self, where: str, exc: Exception) -> None:
+        """Count a failure on one frame; its first occurrence is logged with the traceback."""
+        key = f"{where}: {type(exc).__name__}"
+        self.failures[key] += 1
+        self._failed_in_row += 1
+        if self.failures[key] == 1:
+            log.error("%s failed on a frame, skipped (%s; each kind logged once)", where, exc,
+                      exc_info=exc)
+        if self._failed_in_row >= MAX_FAILED_FRAMES:
+            raise RuntimeError(f"{where} failed on {self._failed_in_row} frames in a row, "
+                               f"the last with {type(exc).__name__}: {exc}") from exc
+
+    def _close_tracker(self) -> None:
+        tracker, self.tracker = self.tracker, None
+        if tracker is None:
+            return
+        try:
+            tracker.close()
+        except Exception:
+            log.exception("closing the tracker failed")
+
+    def hung_for(self, now: float) -> float | None:
+        """Seconds the tracker has been on one frame, when that is longer than a frame can
+        take (the first frame may compile the kernels); None otherwise."""
+        since = self._busy_since
+        limit = FIRST_FRAME_HUNG_S if self.frames == 0 else TRACK_HUNG_S
+        return None if since is None or now - since <= limit else now - since
 
     def _mapping_has_room(self) -> bool:
         """Wait (at most 0.1 s) until the tracker's mapping backlog has room for a frame, so

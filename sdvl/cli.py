@@ -30,6 +30,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "map": ("sim.map_command", "fuse depth along metric poses into a 3D occupancy map"),
     "calibrate": ("calib.calibrate_command", "calibrate a camera; convert calibration files"),
     "results": ("sdvl.results", "regenerate the measurements in RESULTS.md from their commands"),
+    "faults": ("sim.faults.command", "fault injection and fuzzing of the service; memory soak"),
 }
 
 

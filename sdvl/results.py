@@ -88,20 +88,19 @@ def machine_note() -> str:
     return f"{datetime.date.today().isoformat()} ({os.cpu_count()} cores, load {load:.1f})"
 
 
-def regenerate(text: str, names: set[str]) -> str:
-    """The results text with the named sections rerun."""
+def regenerate(path: Path, section: Section) -> None:
+    """Rerun one section's command and write its output into the file as it is now (another
+    `sdvl results` may have written other sections meanwhile)."""
+    print(f"sdvl results: {section.name}: {section.command}", file=sys.stderr)
+    output, code = run_command(section.command)
+    body = render(section, output, code, machine_note())
 
     def replace(match: re.Match) -> str:
-        name = match["name"]
-        if name not in names:
+        if match["name"] != section.name:
             return match[0]
-        section = Section(name, COMMAND.search(match["body"])["command"])
-        print(f"sdvl results: {name}: {section.command}", file=sys.stderr)
-        output, code = run_command(section.command)
-        body = render(section, output, code, machine_note())
-        return f"<!-- section: {name} -->\n{body}<!-- end: {name} -->\n"
+        return f"<!-- section: {section.name} -->\n{body}<!-- end: {section.name} -->\n"
 
-    return SECTION.sub(replace, text)
+    path.write_text(SECTION.sub(replace, read_text(path)))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -117,5 +116,7 @@ def run(args: argparse.Namespace) -> int:
     if unknown:
         raise InputError(f"no section {', '.join(sorted(unknown))}; sdvl results --list "
                          "shows them", args.file)
-    args.file.write_text(regenerate(text, names))
+    for section in known:
+        if section.name in names:
+            regenerate(args.file, section)
     return 0

@@ -21,7 +21,7 @@ import time
 from daemon.camera import TestPatternSource
 from daemon.config import Config, load_config, replace
 from daemon.run_command import camera_model, setup_logging, tracker_factory
-from daemon.service import Service
+from daemon.service import Service, prefer_handoffs
 from sim.autopilot import configured_options
 from sim.replay.autopilot_process import AutopilotProcess, VisionMessage
 from sim.replay.harness import choose_estimator, run_replay
@@ -142,6 +142,7 @@ def bench_test_pattern(config: Config, args: argparse.Namespace) -> dict:
         make_tracker = tracker_factory(config, camera_model(config.camera, source))
         recorder = Recorder()
         service = Service(config, source, make_tracker, on_tracked=recorder)
+        prefer_handoffs()
         asyncio.run(measure(service, recorder, args.frames + args.warmup))
         time.sleep(0.2)
     finally:

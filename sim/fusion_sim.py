@@ -21,7 +21,7 @@ from daemon.fusion.config import FusionConfig
 from daemon.fusion.scene import SceneResult
 from daemon.mounting import body_from_camera
 from sim.replay.fusion_scores import turned_about_down
-from vo.result import FrameResult
+from vo.result import FrameResult, Quality
 
 GRAVITY = np.array([0.0, 0.0, 9.80665])
 DT = 0.005  # truth at 200 Hz
@@ -244,11 +244,11 @@ def tracker_results(truth: Truth, opt: TrackerOptions, mounting: MountingConfig,
         i = truth.at(t)
         t_capture = t + BOOT_OFFSET
         if t < opt.start_s:  # the camera runs, the map does not exist yet
-            out.append((t_capture + opt.delay_s, FrameResult(t, None, "initializing"),
+            out.append((t_capture + opt.delay_s, FrameResult(t, None, Quality.INITIALIZING),
                         t_capture))
             continue
         if any(a <= t < b for a, b in opt.lost):
-            out.append((t_capture + opt.delay_s, FrameResult(t, None, "lost"), t_capture))
+            out.append((t_capture + opt.delay_s, FrameResult(t, None, Quality.LOST), t_capture))
             seg = None
             continue
         new = seg is None
@@ -275,7 +275,8 @@ def tracker_results(truth: Truth, opt: TrackerOptions, mounting: MountingConfig,
         T[:3, 3] = seg["p_w"] + scale * (R_w_n @ rng.normal(0, noise, 3))
         cov = np.diag([(scale * opt.cov_std_m * (3.0 if weak else 1.0)) ** 2] * 3
                       + [np.radians(opt.rot_noise_deg) ** 2] * 3)
-        result = FrameResult(t, T, "insufficient" if weak else "good", cov, new_segment=new)
+        result = FrameResult(t, T, Quality.INSUFFICIENT if weak else Quality.GOOD, covariance=cov,
+                             new_segment=new)
         if opt.scene_points:
             ground = _ground_points(truth.p[i] + truth.R[i] @ opt.lever, opt, rng)
             scene = seg["p_w"] + scale * (ground - last_p) @ R_w_n.T

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
@@ -15,11 +14,10 @@ import numpy as np
 from calib.depth_camera import decimate, points_from_depth, unit_depth_rays
 from daemon.map_files import MAP_SUFFIXES, write_map
 from sdvl.errors import InputError
+from sim.replay.progress import progress_bar
 from sim.track_methods import METHODS, alignment, check_method, load_config
 from sim.trajectory import Trajectory, read_tum
 from vo.occupancy import OccupancyMap, OccupancySettings
-
-PROGRESS_EVERY_S = 2.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -156,9 +154,9 @@ def fuse(sequence, poses: np.ndarray, mask: np.ndarray, settings: OccupancySetti
     and a report: frames fused, per-frame fusion time (median, p95 ms), voxels, memory."""
     occupancy = OccupancyMap(settings)
     rays = None
-    times, last_print = [], time.perf_counter()
+    times = []
     frames = np.flatnonzero(mask)[::every]
-    for count, i in enumerate(frames, start=1):
+    for i in progress_bar("fuse", len(frames), frames, enabled=not quiet):
         depth = sequence.depth(int(i))
         if depth is None:
             continue
@@ -169,11 +167,6 @@ def fuse(sequence, poses: np.ndarray, mask: np.ndarray, settings: OccupancySetti
         start = time.perf_counter()
         occupancy.insert(points @ T[:3, :3].T + T[:3, 3], T[:3, 3])
         times.append((time.perf_counter() - start) * 1e3)
-        if not quiet and time.perf_counter() - last_print > PROGRESS_EVERY_S:
-            last_print = time.perf_counter()
-            print(f"\rfused {count}/{len(frames)} frames", end="", file=sys.stderr, flush=True)
-    if not quiet:
-        print(file=sys.stderr)
     _, logodds = occupancy.voxels()
     return occupancy, {
         "sequence": sequence.name, "frames_fused": len(times), "voxel_m": settings.voxel_m,

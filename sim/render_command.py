@@ -6,8 +6,6 @@ with --depth also depth.txt and depth/ (16-bit PNG in the sensor's unit, camera.
 from __future__ import annotations
 
 import argparse
-import sys
-import time
 from pathlib import Path
 
 import cv2
@@ -17,6 +15,7 @@ from calib.camera_yaml import save_camera
 from calib.depth_camera import DepthSpec
 from sdvl.errors import InputError
 from sim.datasets.layout import write_imu_csv, write_rig_yaml, write_sensors_csv
+from sim.replay.progress import progress_bar
 from sim.synth.depth_sensor import SENSORS, DepthSensor
 from sim.synth.flight import synthetic_sequence
 from sim.synth.presets import PRESETS
@@ -82,19 +81,14 @@ def run(args: argparse.Namespace) -> int:
     write_imu_csv(seq.imu, out / "imu.csv")
     write_sensors_csv(seq.extras["sensors"], out / "sensors.csv")
     write_rig_yaml(seq.extras["world"], seq.extras["T_b_c"], out / "rig.yaml")
-    lines, depth_lines, start = [], [], time.monotonic()
-    for i, (t, image) in enumerate(seq.frames()):
+    lines, depth_lines = [], []
+    for i, (t, image) in enumerate(progress_bar(f"render {args.preset}", len(seq), seq.frames())):
         name = f"images/{i:06d}.png"
         cv2.imwrite(str(out / name), image)
         lines.append(f"{t:.6f} {name}\n")
         if args.depth:
             cv2.imwrite(str(out / f"depth/{i:06d}.png"), depth_png(seq.depth(i), sensor))
             depth_lines.append(f"{t:.6f} depth/{i:06d}.png\n")
-        if i % 30 == 29 or i + 1 == len(seq):
-            rate = (i + 1) / max(time.monotonic() - start, 1e-9)
-            print(f"\rrender {args.preset}: {i + 1}/{len(seq)} frames ({rate:.1f}/s)",
-                  end="", file=sys.stderr, flush=True)
-    print(file=sys.stderr)
     (out / "frames.txt").write_text("# timestamp filename\n" + "".join(lines))
     if args.depth:
         (out / "depth.txt").write_text("# timestamp filename\n" + "".join(depth_lines))

@@ -11,6 +11,7 @@ import resource
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ import numpy as np
 from sdvl.errors import InputError
 from sim.track_methods import METHODS, alignment, build_tracker, check_method, load_config
 from sim.trajectory import Trajectory, write_tum
+from vo.result import Quality
 
 PROGRESS_EVERY_S = 2.0
 FRAME_COLUMNS = ("t", "quality", "matches", "attempts", "ransac_hypotheses", "inliers",
@@ -57,18 +59,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
-def resolve_sequence(name: str, size: tuple[int, int] | None = None):
+def resolve_sequence(name: str, size: tuple[int, int] | None = None, seed: int | None = None,
+                     textures: str | None = None):
     """Open a sequence by path, or by name inside the shared data folder; `size` renders a
-    synthetic preset at another image size."""
+    synthetic preset at another image size, `seed` flies another of its worlds, `textures`
+    ('auto', 'procedural' or a folder, as for sdvl render) paints it."""
     from sim.datasets import open_sequence
 
-    if size is not None:
+    if size is not None or seed is not None or textures is not None:
         from sim.synth.flight import synthetic_sequence
         from sim.synth.presets import PRESETS
 
         if name not in PRESETS:
-            raise InputError(f"--size is for synthetic presets ({', '.join(PRESETS)})")
-        return synthetic_sequence(name, size=size)
+            given = [option for option, value in (("--size", size), ("--world-seeds", seed),
+                                                  ("--textures", textures)) if value is not None]
+            raise InputError(f"{' and '.join(given)} {'is' if len(given) == 1 else 'are'} for "
+                             f"synthetic presets ({', '.join(PRESETS)}), not {name}")
+        return synthetic_sequence(name, size=size, seed=seed or 0, textures=textures or "auto")
     path = Path(name)
     if not path.exists():
         data = Path(os.environ.get("SDVL_DATA", Path(__file__).resolve().parents[2]
@@ -141,56 +148,76 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
     tracker = build_tracker(method, sequence, config, threaded, slow_mapping is not None)
     offer = tracker.process if slow_mapping is None else SlowMapping(tracker,
                                                                      *slow_mapping).offer
-    skipped = 0
-    times, poses, timings, qualities, segment = [], [], [], [], []
-    n_frames = 0
-    memory = []
+    log = TrackLog(frame_rows)
     pace = camera_rate() if paced else lambda t: None
-    started = time.perf_counter()
-    first_pose_s = None
-    last_print = started
+    last_print = log.started
     try:
         for t, image in sequence.frames(max_frames):
             pace(t)
             result = offer(image, t)
-            n_frames += 1
+            log.add(t, result)
             if result is None:
-                skipped += 1
                 continue
-            qualities.append(result.quality)
-            if frame_rows is not None:
-                frame_rows.append(frame_row(result))
-            if result.quality not in ("initializing",):
-                timings.append(result.timings)
-            if result.has_pose:
-                times.append(t)
-                poses.append(result.T_w_c)
-                segment.append(len(segment) and segment[-1] + int(result.new_segment))
-                if first_pose_s is None:
-                    first_pose_s = time.perf_counter() - started
-            if memory_every and n_frames % memory_every == 0:
-                memory.append(memory_sample(tracker, n_frames))
+            if memory_every and log.n_frames % memory_every == 0:
+                log.memory.append(memory_sample(tracker, log.n_frames))
             now = time.perf_counter()
             if not quiet and now - last_print > PROGRESS_EVERY_S:
                 last_print = now
-                print(f"\rframe {n_frames}  tracked {len(poses)}  {result.quality:<12}",
+                print(f"\rframe {log.n_frames}  tracked {len(log.poses)}  {result.quality:<12}",
                       end="", file=sys.stderr, flush=True)
     finally:
         tracker.close()
     if not quiet:
         print(file=sys.stderr)
-    estimate = Trajectory.from_matrices(np.array(times), np.array(poses)) if poses else None
-    report = build_report(sequence, n_frames, estimate, np.array(segment), timings, qualities,
-                          first_pose_s, alignment(method))
-    report["skipped"] = skipped
+    estimate = (Trajectory.from_matrices(np.array(log.times), np.array(log.poses))
+                if log.poses else None)
+    report = build_report(sequence, log.n_frames, estimate, np.array(log.segment), log.timings,
+                          log.qualities, log.first_pose_s, alignment(method))
+    report["skipped"] = log.skipped
     # local BAs the mapping thread skipped or ended early for a waiting frame (current map)
     mapper = getattr(tracker, "mapper", None)
     report["ba_skipped"] = getattr(mapper, "skipped_ba", 0)
     report["ba_shortened"] = getattr(mapper, "shortened_ba", 0)
     if memory_every:
-        report["memory"] = memory
+        report["memory"] = log.memory
         report["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return report, estimate
+
+
+@dataclass
+class TrackLog:
+    """What track_sequence collects from the frames' results."""
+
+    frame_rows: list[dict] | None = None  # frame_row of each frame tracked, when given
+    started: float = field(default_factory=time.perf_counter)
+    n_frames: int = 0
+    skipped: int = 0  # frames a slow mapping thread made the tracker skip
+    times: list[float] = field(default_factory=list)
+    poses: list[np.ndarray] = field(default_factory=list)
+    segment: list[int] = field(default_factory=list)  # map segment of each pose
+    timings: list[dict[str, float]] = field(default_factory=list)
+    qualities: list[str] = field(default_factory=list)
+    memory: list[dict] = field(default_factory=list)
+    first_pose_s: float | None = None  # seconds from the start to the first pose
+
+    def add(self, t: float, result) -> None:
+        """One camera frame at time t: its FrameResult, or None when it was skipped."""
+        self.n_frames += 1
+        if result is None:
+            self.skipped += 1
+            return
+        self.qualities.append(result.quality)
+        if self.frame_rows is not None:
+            self.frame_rows.append(frame_row(result))
+        if result.quality != Quality.INITIALIZING:
+            self.timings.append(result.timings)
+        if result.has_pose:
+            self.times.append(t)
+            self.poses.append(result.T_w_c)
+            self.segment.append(len(self.segment) and self.segment[-1]
+                                + int(result.new_segment))
+            if self.first_pose_s is None:
+                self.first_pose_s = time.perf_counter() - self.started
 
 
 def camera_rate() -> Callable[[float], None]:

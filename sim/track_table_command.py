@@ -16,6 +16,7 @@ import numpy as np
 
 from sdvl.errors import InputError
 from sim.track_methods import METHODS, alignment, check_method, load_config
+from sim.track_sweep import Variant, format_summary, summary, variants
 
 DEFAULT_SEQUENCES = ("vamr_ex01_checkerboard736", "kitti00_first200", "tum_fr1_rpy")
 # the eight configurations of thesis 7.1 (Config1..Config8): matcher x local BA x outlier
@@ -56,8 +57,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="run the configurations N rounds per sequence and print each "
                              "round's tracking p95 relative to the first configuration, then "
                              "the median ratio (timing on a shared machine is noisy)")
-    parser.add_argument("--seed", type=int, default=None, metavar="N",
-                        help="the tracker's random seed (default: the configuration's)")
+    parser.add_argument("--seeds", default=None, metavar="LIST",
+                        help="the tracker's random seeds ('0-9', '1,3'): every configuration "
+                             "once per seed (default: the configuration's seed)")
+    parser.add_argument("--world-seeds", default=None, metavar="LIST",
+                        help="synthetic presets: fly each world seed ('0-2'; default 0)")
+    parser.add_argument("--size", default=None, metavar="WxH",
+                        help="synthetic presets at this image size (default: the preset's)")
+    parser.add_argument("--textures", default=None, metavar="auto|procedural|DIR",
+                        help="synthetic presets painted with these textures (as for sdvl "
+                             "render; default auto)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE[,VALUE...]",
+                        help="a tracker parameter on top of every configuration (repeatable); "
+                             "several values make a variant per value, compared seed by seed "
+                             "with the first in a summary at the end")
+    parser.add_argument("--mapping-period", type=int, default=None, metavar="P",
+                        help="emulated slow mapping, as for sdvl track")
     parser.add_argument("--max-frames", type=int, default=None, metavar="N")
     parser.add_argument("--warm-up", type=int, default=WARM_UP_FRAMES, metavar="N",
                         help="first track N frames of the first sequence untimed, with every "
@@ -67,12 +82,51 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Track every sequence with every configuration; print the table row by row. A run that
-    fails is reported in its row and the table goes on (exit status 1 at the end)."""
-    from sim.track_command import resolve_sequence, track_sequence
+    """Track every sequence with every configuration (and variant, and seed); print the table
+    row by row, then the summary of a sweep. A run that fails is reported in its row and the
+    table goes on (exit status 1 at the end)."""
+    from sim.track_command import track_sequence
     from vo.config import TrackerConfig
 
-    names = config_names(args.configs)
+    plan = _plan(args)
+    if not args.json:
+        print(header(), flush=True)
+    rows: list[dict] = []
+    first = True
+    for seq_name, world, sequence in _sequences(args):
+        if first and args.warm_up > 0:
+            warm_up(sequence, track_sequence, TrackerConfig, args.warm_up)
+        first = False
+        ratios = []
+        for round_ in range(1, args.repeat + 1):
+            round_rows = []
+            for name, variant, seed in plan:
+                config = row_config(name, seq_name, variant, seed, TrackerConfig)
+                row = table_run(seq_name, name, sequence, config, args, track_sequence)
+                row.update(variant=variant.label, seed=seed, world_seed=world)
+                round_rows.append(row)
+                print(json.dumps(row) if args.json else format_row(row), flush=True)
+            rows += round_rows
+            if args.repeat > 1:
+                ratios.append(p95_ratios(round_rows))
+                print(format_ratios(seq_name, f"round {round_}", plan[0][0], ratios[-1],
+                                    args.json), flush=True)
+        if args.repeat > 1:
+            print(format_ratios(seq_name, f"median of {args.repeat}", plan[0][0],
+                                median_ratios(ratios), args.json), flush=True)
+        if not args.json and seq_name in ORIGINAL and world is None:
+            tracked, ate, ms = ORIGINAL[seq_name]
+            print(f"{seq_name:<26} {'original C++ (ORB)':<22} {tracked:>9} {ate:>11} "
+                  f"{'':>4} {ms:>9}", flush=True)
+    _print_summary(rows, plan, args.json)
+    return 1 if any("error" in r for r in rows) else 0
+
+
+def _plan(args: argparse.Namespace) -> list[tuple[str, Variant, int | None]]:
+    """(configuration, variant, tracker seed) of every run on a sequence, checking the
+    options."""
+    from sim.replay.seeds import parse_seeds
+
     if args.max_frames is not None and args.max_frames <= 0:
         raise InputError("--max-frames must be positive")
     if args.warm_up < 0:
@@ -82,45 +136,51 @@ def run(args: argparse.Namespace) -> int:
     if args.paced and not args.threaded:
         raise InputError("--paced needs --threaded (without a mapping thread nothing runs "
                          "between frames)")
-    sequences = [(Path(name).name, resolve_sequence(name)) for name in args.sequences]
-    if not args.json:
-        print(header(), flush=True)
-    failed = 0
-    for i, (seq_name, sequence) in enumerate(sequences):
-        sequence = in_memory(sequence, args.max_frames)
-        if i == 0 and args.warm_up > 0:
-            warm_up(sequence, track_sequence, TrackerConfig, args.warm_up)
-        ratios = []
-        for round_ in range(1, args.repeat + 1):
-            rows = []
-            for name in names:
-                config = row_config(name, seq_name, args.seed, TrackerConfig)
-                rows.append(table_run(seq_name, name, sequence, config, args, track_sequence))
-                failed += "error" in rows[-1]
-                print(json.dumps(rows[-1]) if args.json else format_row(rows[-1]), flush=True)
-            if args.repeat > 1:
-                ratios.append(p95_ratios(rows))
-                print(format_ratios(seq_name, f"round {round_}", names[0], ratios[-1],
-                                    args.json), flush=True)
-        if args.repeat > 1:
-            print(format_ratios(seq_name, f"median of {args.repeat}", names[0],
-                                median_ratios(ratios), args.json), flush=True)
-        if not args.json and seq_name in ORIGINAL:
-            tracked, ate, ms = ORIGINAL[seq_name]
-            print(f"{seq_name:<26} {'original C++ (ORB)':<22} {tracked:>9} {ate:>11} "
-                  f"{'':>4} {ms:>9}", flush=True)
-    return 1 if failed else 0
+    if args.mapping_period is not None and (args.threaded or args.mapping_period < 1):
+        raise InputError("--mapping-period needs no --threaded and a period >= 1")
+    seeds = [None] if args.seeds is None else parse_seeds(args.seeds)
+    return [(name, variant, seed) for name in config_names(args.configs)
+            for variant in variants(args.set) for seed in seeds]
 
 
-def row_config(name: str, seq_name: str, seed: int | None, config_class):
-    """The config of a row: a thesis configuration over the sequence's base preset, or another
-    method's defaults; `seed` (if given) replaces the config's."""
+def _sequences(args: argparse.Namespace):
+    """(name, world seed or None, sequence in memory) of every sequence to track."""
+    from sim.replay.seeds import parse_seeds
+    from sim.track_command import resolve_sequence
+
+    size = None
+    if args.size is not None:
+        from sim.render_command import parse_size  # loads the renderer: only when asked
+
+        size = parse_size(args.size)
+    worlds = [None] if args.world_seeds is None else parse_seeds(args.world_seeds)
+    for name in args.sequences:
+        for world in worlds:
+            sequence = resolve_sequence(name, size, world, args.textures)
+            yield Path(name).name, world, in_memory(sequence, args.max_frames)
+
+
+def _print_summary(rows: list[dict], plan: list, as_json: bool) -> None:
+    """The sweep's summary (only when some configuration ran more than once on a sequence:
+    several variants, seeds or world seeds)."""
+    lines = summary(rows)
+    if all(s["runs"] == 1 for s in lines) and len({v for _, v, _ in plan}) < 2:
+        return
+    first = plan[0][1].label
+    for s in lines:
+        print(json.dumps({"summary": s}) if as_json else format_summary(s, first), flush=True)
+
+
+def row_config(name: str, seq_name: str, variant: Variant, seed: int | None, config_class):
+    """The config of a row: a thesis configuration over the sequence's base preset with the
+    variant's parameters, or another method's defaults (a variant does not apply to those);
+    `seed` (if given) replaces the config's."""
     if name in METHODS:
         config = load_config(name, None)
         if seed is not None:
             config.seed = seed
         return config
-    parameters = {**base_parameters(seq_name), **CONFIGS[name]}
+    parameters = {**base_parameters(seq_name), **CONFIGS[name], **dict(variant.parameters)}
     if seed is not None:
         parameters["seed"] = seed
     return config_class.from_dict(parameters)
@@ -134,8 +194,9 @@ def table_run(seq_name: str, name: str, sequence, config, args: argparse.Namespa
     try:
         if method:
             check_method(name, sequence)
+        slow = None if args.mapping_period is None else (args.mapping_period, 0)
         report, _ = track_sequence(sequence, config, args.threaded, args.max_frames,
-                                   quiet=True, paced=args.paced, **method)
+                                   quiet=True, paced=args.paced, slow_mapping=slow, **method)
     except Exception as exc:
         return {"sequence": seq_name, "config": name,
                 "error": f"{type(exc).__name__}: {exc}"}
@@ -243,7 +304,12 @@ def format_row(r: dict) -> str:
     """One line of the text table: ATE over all segments (several segments are only
     indicative, each having its own scale), tracking median and p95 ms, mapping median and
     mean ms."""
-    label = f"{r['config']} ({THESIS_NAMES.get(r['config'], r.get('align', '').upper() + ' ATE')})"
+    thesis = THESIS_NAMES.get(r['config'], r.get('align', '').upper() + ' ATE')
+    label = f"{r['config']} ({thesis})"
+    extra = [f"world {r['world_seed']}" if r.get("world_seed") is not None else "",
+             f"seed {r['seed']}" if r.get("seed") is not None else "",
+             "" if r.get("variant", "as configured") == "as configured" else r["variant"]]
+    label = " ".join([label, *filter(None, extra)])
     if "error" in r:
         return f"{r['sequence']:<26} {label:<22} failed: {r['error']}"
 

@@ -40,7 +40,8 @@ class FakeTracker:
         self.index += 1
         pose = None if quality in ("lost", "initializing") else self.pose(t - self.t0)
         cov = np.diag([1e-4] * 3 + [1e-5] * 3) if pose is not None else None
-        return FrameResult(t, pose, quality, cov, 100, 120, 90, {"total": 0.001}, new_segment)
+        return FrameResult(t, pose, quality, covariance=cov, n_matches=100, n_attempts=120,
+                           n_inliers=90, timings={"total": 0.001}, new_segment=new_segment)
 
     def close(self) -> None:
         self.closed = True
@@ -60,11 +61,12 @@ class RunningService:
     """A Service on its own event loop thread; `stop()` returns its exit code."""
 
     def __init__(self, config: Config, tracker: FakeTracker | None = None, source=None,
-                 **kwargs):
+                 make_tracker=None, **kwargs):
         self.tracker = tracker or FakeTracker()
         cam = config.camera
         self.source = source or TestPatternSource(cam.width, cam.height, cam.fps)
-        self.service = Service(config, self.source, lambda frame: self.tracker, **kwargs)
+        self.service = Service(config, self.source, make_tracker or (lambda frame: self.tracker),
+                               **kwargs)
         self.loop = asyncio.new_event_loop()
         self.exit_code: int | None = None
         self.thread = threading.Thread(target=self._run, daemon=True)

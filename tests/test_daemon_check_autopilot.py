@@ -65,7 +65,8 @@ def test_misconfigured_ardupilot_lists_every_setting_first_the_verdict(capsys):
 
 
 def test_px4_int_parameters_are_decoded_and_yaw_fusion_refused(capsys):
-    with SimAutopilot(configured_options(flavour="px4", port="pty", heartbeat_hz=5)) as sim:
+    with SimAutopilot(configured_options(flavour="px4", port="pty", heartbeat_hz=5,
+                                         params={"EKF2_EV_CTRL": 15})) as sim:
         code, out = check(sim, capsys, "--measure-s", "0")
     assert code == 1
     assert out[0].startswith("NOT READY: 1 problem would stop a flight on vision (px4")

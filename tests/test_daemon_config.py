@@ -8,7 +8,14 @@ import tomllib
 
 import pytest
 
-from daemon.config import EXAMPLE_CONFIG, SECTIONS, Config, config_from_dict, load_config
+from daemon.config import (
+    EXAMPLE_CONFIG,
+    SECTIONS,
+    Config,
+    config_from_dict,
+    load_config,
+    replace,
+)
 from sdvl.cli import main
 from sdvl.errors import InputError
 
@@ -35,14 +42,47 @@ def test_example_config_documents_every_key_with_its_default():
     ({"mavlink": {"max_rate_hz": 80}}, "mavlink.max_rate_hz must be in (0, 50]"),
     ({"mavlink": {"output": "vpe"}}, "mavlink.output must be one of"),
     ({"mounting": {"pitch_deg": -90}}, "used only with mounting.preset = \"custom\""),
-    ({"mounting": {"scale": 0}}, "mounting.scale must be > 0"),
+    ({"mounting": {"scale": 0}}, "mounting.scale must be in (0, 1e+06]"),
     ({"origin": {"latitude_deg": 91.0}}, "origin.latitude_deg must be -90..90"),
     ({"mavlink": 3}, "[mavlink] must be a table"),
+    ({"camera": {"width": -64, "height": 48}}, "camera.width must be 0..8192"),
+    ({"camera": {"width": 640}}, "camera.width and camera.height are set together"),
+    ({"camera": {"reconnect_min_s": 9.0}}, "camera.reconnect_min_s must be <="),
+    ({"mavlink": {"link": "serial:/dev/ttyAMA0:0"}}, "a serial port needs its baud rate"),
+    ({"mavlink": {"link": "/dev/ttyACM0:115000"}}, "115000 is not a serial baud rate"),
+    ({"mavlink": {"autopilot_system_id": 256}}, "mavlink.autopilot_system_id must be 0..255"),
+    ({"service": {"log_level": "loud"}}, "service.log_level must be one of debug, info"),
 ])
 def test_bad_config_names_the_key_and_the_fix(data, message):
     with pytest.raises(InputError) as err:
         config_from_dict(data)
     assert message in str(err.value)
+
+
+@pytest.mark.parametrize(("line", "message"), [
+    ("[origin]\naltitude_m = nan", "origin.altitude_m must be a finite number, got nan"),
+    ("[origin]\naltitude_m = 1e300", "origin.altitude_m must be -1000..10000"),
+    ("[mounting]\nscale = inf", "mounting.scale must be a finite number, got inf"),
+    ("[fusion]\nbaro_std_m = -inf", "fusion.baro_std_m must be a finite number"),
+])
+def test_values_from_a_file_must_be_finite_and_in_range(tmp_path, line, message):
+    path = tmp_path / "sdvl.toml"
+    path.write_text(line + "\n")
+    with pytest.raises(InputError) as err:
+        load_config(path)
+    assert message in str(err.value) and str(path) in str(err.value)
+
+
+def test_tracker_numbers_must_be_finite():
+    from vo.config import TrackerConfig
+
+    with pytest.raises(InputError, match=r"tracker\.ransac_threshold_px must be a finite number"):
+        TrackerConfig.from_dict({"ransac_threshold_px": float("nan")})
+
+
+def test_programmatic_copies_are_checked_too():
+    with pytest.raises(InputError, match=r"mavlink\.max_latency_s must be in"):
+        replace(Config(), mavlink={"max_latency_s": 1e6})
 
 
 def test_numbers_accept_integers_and_custom_mounting_accepts_angles():

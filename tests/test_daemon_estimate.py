@@ -25,7 +25,8 @@ def run(estimator, poses, quality="good", covariance=None, first_new=True):
     """Feed poses at 20 Hz; the list of estimates (None where nothing is sent)."""
     out = []
     for i, T in enumerate(poses):
-        result = FrameResult(i * DT, T, quality, covariance, 50, 60, 45, {}, first_new and i == 0)
+        result = FrameResult(i * DT, T, quality, covariance=covariance, n_matches=50,
+                             n_attempts=60, n_inliers=45, new_segment=first_new and i == 0)
         out.append(estimator.on_frame(result, 100.0 + i * DT))
     return out
 
@@ -118,7 +119,7 @@ def test_new_segment_increments_reset_counter_and_continues_from_last_pose():
     R = Rotation.from_euler("xyz", [0.3, -0.2, 1.0]).as_matrix()
     second = []
     for i in range(3):
-        result = FrameResult(1.0 + i * DT, pose(R, (5, 5, 5 + 0.1 * i)), "good", None,
+        result = FrameResult(1.0 + i * DT, pose(R, (5, 5, 5 + 0.1 * i)), "good",
                              new_segment=(i == 0))
         second.append(est.on_frame(result, 200.0 + i * DT))
     assert second[0] is None and est.reset_counter == 1

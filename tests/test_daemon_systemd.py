@@ -98,6 +98,7 @@ def test_sdvl_run_under_notify_socket_and_sigterm(tmp_path):
                                 env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                 text=True)
         try:
+            notify.settimeout(60.0)  # imports and the numba cache: seconds on a loaded machine
             got = [notify.recv(4096).decode()]
             assert got[0].startswith("READY=1\nSTATUS=")
             while not any("WATCHDOG=1" in g for g in got):

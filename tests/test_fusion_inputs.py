@@ -14,7 +14,6 @@ from daemon.fusion.attitude import AttitudeTrack
 from daemon.fusion.clock import ClockMap
 from daemon.fusion.config import FusionConfig
 from daemon.fusion.sensors import Attitude, Baro, Imu, Range, parse, pressure_altitude
-from daemon.fusion.state import matrix_to_rotvec, rotvec_to_matrix
 from sdvl.errors import InputError
 
 DOWN = mavlink2.MAV_SENSOR_ROTATION_PITCH_270
@@ -113,16 +112,6 @@ def test_attitude_track_interpolates_and_times_out() -> None:
     assert mid.rates[2] == pytest.approx(0.1)
     assert track.at(1.15) is track.samples[-1]
     assert track.at(1.3) is None and track.at(0.8) is None
-
-
-def test_rotation_exp_log_match_scipy() -> None:
-    rng = np.random.default_rng(1)
-    for angle in (0.0, 1e-9, 0.3, 2.0, np.pi - 1e-4):
-        v = rng.normal(size=3)
-        v *= angle / np.linalg.norm(v)
-        R = Rotation.from_rotvec(v).as_matrix()
-        assert rotvec_to_matrix(v) == pytest.approx(R, abs=1e-12)
-        assert matrix_to_rotvec(R) == pytest.approx(v, abs=1e-7)
 
 
 def test_config_fields_are_plain_toml_values() -> None:

@@ -25,7 +25,7 @@ class FakeTracker:
 
     def process(self, image: np.ndarray, t: float) -> FrameResult:
         self.last = SimpleNamespace(t=t, feat_point=np.array([1, 4, 9]))
-        return FrameResult(t, np.eye(4), "good", np.eye(6), n_matches=3)
+        return FrameResult(t, np.eye(4), "good", covariance=np.eye(6), n_matches=3)
 
     def close(self) -> None:
         self.closed = True

@@ -26,7 +26,8 @@ from sim.replay.flight import (
     sensor_streams,
     vehicle_trajectory,
 )
-from sim.replay.harness import ReplayRun, choose_estimator, run_replay
+from sim.replay.harness import choose_estimator, run_replay
+from sim.replay.replay_run import ReplayRun
 from sim.replay.report import KEYS, build_report, received_poses, start_aligned, velocity_at
 from sim.sequence import ImuSamples
 from sim.synth.sensors import SensorNoise

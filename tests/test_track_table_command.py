@@ -67,12 +67,12 @@ def test_unknown_configuration_is_one_line_error(capsys, configs):
 
 def test_repeat_prints_each_rounds_p95_ratio_and_the_median(data_dir, capsys, monkeypatch):
     """Fake runs with known p95s: BA's ratio to the first configuration is 1.2, 0.9, 1.1 in
-    the three rounds (median 1.1); --paced reaches the tracker run, --seed its config."""
+    the three rounds (median 1.1); --paced reaches the tracker run, --seeds its config."""
     monkeypatch.setenv("SDVL_DATA", str(data_dir))
     p95 = iter([10.0, 12.0, 20.0, 18.0, 10.0, 11.0])
     calls = []
 
-    def fake(sequence, config, threaded, max_frames, quiet, paced=False):
+    def fake(sequence, config, threaded, max_frames, quiet, paced=False, slow_mapping=None):
         calls.append((config.local_ba, config.seed, threaded, paced))
         return {"frames": 20, "tracked": 20, "segments": 1, "ate_rmse_m": 0.01,
                 "longest_segment_ate_rmse_m": 0.01, "track_ms_median": 1.0,
@@ -81,7 +81,7 @@ def test_repeat_prints_each_rounds_p95_ratio_and_the_median(data_dir, capsys, mo
     monkeypatch.setattr(sim.track_command, "track_sequence", fake)
     assert main(["track-table", "vamr_ex01_checkerboard736", "--configs", "patch+rej,Config4",
                  "--max-frames", "20", "--warm-up", "0", "--threaded", "--paced",
-                 "--repeat", "3", "--seed", "2"]) == 0
+                 "--repeat", "3", "--seeds", "2"]) == 0
     assert calls == [(False, 2, True, True), (True, 2, True, True)] * 3
     lines = [line for line in capsys.readouterr().out.splitlines() if "p95 /" in line]
     ratios = [float(line.rsplit(" ", 1)[1]) for line in lines]
@@ -89,6 +89,45 @@ def test_repeat_prints_each_rounds_p95_ratio_and_the_median(data_dir, capsys, mo
         "round 1", "round 2", "round 3", "median of 3"]
     assert ratios == pytest.approx([1.2, 0.9, 1.1, 1.1])
     assert all("patch+ba+rej" in line for line in lines)
+
+
+def test_a_sweep_compares_the_variants_seed_by_seed(data_dir, capsys, monkeypatch):
+    """--set with two values and --seeds 0-2: every run per value and seed, then a summary
+    per variant (fake runs whose ATE is known: grid_cell 16 is better on seeds 0 and 2)."""
+    monkeypatch.setenv("SDVL_DATA", str(data_dir))
+    ate = {(32, 0): 0.02, (32, 1): 0.01, (32, 2): 0.04, (16, 0): 0.01, (16, 1): 0.03,
+           (16, 2): 0.02}
+    runs = []
+
+    def fake(sequence, config, threaded, max_frames, quiet, paced=False, slow_mapping=None):
+        runs.append((config.grid_cell, config.seed, config.outlier_rejection, slow_mapping))
+        return {"frames": 20, "tracked": 19, "segments": 1,
+                "ate_rmse_m": ate[(config.grid_cell, config.seed)],
+                "longest_segment_ate_rmse_m": None, "track_ms_median": 1.0,
+                "track_ms_p95": 2.0, "stages": {}, "stages_mean": {}}, None
+
+    monkeypatch.setattr(sim.track_command, "track_sequence", fake)
+    assert main(["track-table", "vamr_ex01_checkerboard736", "--configs", "patch+rej",
+                 "--max-frames", "20", "--warm-up", "0", "--seeds", "0-2",
+                 "--set", "grid_cell=32,16", "--mapping-period", "2"]) == 0
+    assert runs == [(g, s, True, (2, 0)) for g in (32, 16) for s in range(3)]
+    out = capsys.readouterr().out.splitlines()
+    rows = [line for line in out if "(Config2)" in line]
+    assert len(rows) == 6 and "seed 1 grid_cell=16" in rows[4]
+    summary = [line for line in out if "ATE mean" in line]
+    assert len(summary) == 2
+    assert "grid_cell=32" in summary[0] and "0.0233 m over 3 (0.02/0.01/0.04)" in summary[0]
+    assert "better than grid_cell=32 on 2 of 3" in summary[1]
+
+
+@pytest.mark.parametrize(("option", "word"), [(["--set", "grid_cell"], "KEY=VALUE"),
+                                              (["--world-seeds", "0"], "synthetic"),
+                                              (["--seeds", "2-1"], "empty")])
+def test_bad_sweep_options_are_one_line_errors(data_dir, capsys, monkeypatch, option, word):
+    monkeypatch.setenv("SDVL_DATA", str(data_dir))
+    assert main(["track-table", "vamr_ex01_checkerboard736", "--warm-up", "0", *option]) == 2
+    err = capsys.readouterr().err.strip()
+    assert word in err and "\n" not in err
 
 
 def test_paced_needs_threaded(capsys):

@@ -313,13 +313,13 @@ def test_the_trackers_last_frame_follows_a_bundle_adjustment():
     last.T_c_w = exp_se3(np.array([0.0, 0.0, -0.3, 0.0, 0.0, 0.0])) @ tracker.map.kf_T_c_w[4]
     last.set_features(tracker.map.keyframes[4].feat_point, np.zeros((80, 2)),
                       np.zeros(80, np.int64))
-    tracker.last = last
+    tracker.tracking.last = last
     relative = last.T_c_w @ inv_se3(tracker.map.kf_T_c_w[4])
     assert ba.local_ba(tracker.map, 4, CAMERA, config,
                        moved_keyframes=tracker.mapper.after_ba) > 0
     np.testing.assert_allclose(last.T_c_w @ inv_se3(tracker.map.kf_T_c_w[4]), relative,
                                atol=1e-9)
-    keyframe = tracker.last = tracker.map.keyframes[4]
+    keyframe = tracker.tracking.last = tracker.map.keyframes[4]
     before = keyframe.T_c_w.copy()
     tracker._follow_ba({4: (np.eye(4), exp_se3(np.full(6, 0.01)))})
     assert np.array_equal(keyframe.T_c_w, before)

@@ -9,7 +9,13 @@ from vo_scenes import load_texture, look_down_pose, render_plane, small_camera
 
 from vo.config import TrackerConfig
 from vo.frame import Frame
-from vo.initialization import Initializer, InitialMap, pose_from_homography, sampson_error
+from vo.initialization import (
+    Initializer,
+    InitialMap,
+    InitOutcome,
+    pose_from_homography,
+    sampson_error,
+)
 from vo.se3 import inv_se3, rotation_angle_deg
 
 
@@ -33,7 +39,7 @@ def test_initializer_recovers_relative_pose(data_dir, tilt):
         result = init.add(frame)
         if isinstance(result, InitialMap):
             break
-        assert result is None
+        assert result is InitOutcome.TRACKING
     assert isinstance(result, InitialMap)
     T_true = poses[frame.id] @ inv_se3(poses[0])
     assert rotation_angle_deg(T_true[:3, :3].T @ result.T_cur_ref[:3, :3]) < 0.5
@@ -111,7 +117,7 @@ def test_rotation_only_while_no_parallax(data_dir):
     frames = [Frame(i, float(i), render_plane(tex, cam, T), cam, 5) for i, T in enumerate(turn)]
     assert init.set_reference(frames[0])
     for frame in frames[1:]:
-        assert init.add(frame) is None
+        assert init.add(frame) is InitOutcome.TRACKING
     R, rms = init.rotation_only()
     R_true = (turn[-1] @ inv_se3(turn[0]))[:3, :3]
     assert rotation_angle_deg(R_true.T @ R) < 0.1 and rms < 0.5

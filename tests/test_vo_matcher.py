@@ -45,10 +45,9 @@ def test_direct_match_refines_a_wrong_prediction(scene):
     errors = []
     for i in range(len(px)):
         pred = true[i] + rng.normal(0.0, 1.2, 2)
-        u, v, _, ok = match_direct(cam.params, ref.pyr.flat, ref.pyr.offsets, ref.pyr.widths,
-                                   ref.pyr.heights, px[i, 0], px[i, 1], 0, f[i], d[i],
-                                   T_cur_ref, cur.pyr.flat, cur.pyr.offsets, cur.pyr.widths,
-                                   cur.pyr.heights, pred[0], pred[1], 4, 10)
+        u, v, _, ok = match_direct(cam.params, ref.pyr.layout, ref.pyr.flat,
+                                   (px[i, 0], px[i, 1], 0, f[i]), d[i], T_cur_ref,
+                                   cur.pyr.flat, pred[0], pred[1], 4, 10)
         if ok and cam.in_image(true[i:i + 1], 10)[0]:
             errors.append(np.hypot(u - true[i, 0], v - true[i, 1]))
     assert len(errors) >= 25
@@ -65,11 +64,9 @@ def test_epipolar_search_finds_the_true_corner(scene):
         if not cam.in_image(true[i:i + 1], 20)[0]:
             continue
         rho = 1.0 / d[i]
-        u, v, _, ok = match_epipolar(cam.params, ref.pyr.flat, ref.pyr.offsets, ref.pyr.widths,
-                                     ref.pyr.heights, px[i, 0], px[i, 1], 0, f[i], rho * 1.2,
-                                     rho * 0.5, T_cur_ref, cur.pyr.flat, cur.pyr.offsets,
-                                     cur.pyr.widths, cur.pyr.heights, c.x, c.y, c.xn, c.yn,
-                                     c.row_start, 0, 2, 2.0, 2000.0, 10,
+        u, v, _, ok = match_epipolar(cam.params, ref.pyr.layout, ref.pyr.flat,
+                                     (px[i, 0], px[i, 1], 0, f[i]), rho * 1.2, rho * 0.5,
+                                     T_cur_ref, cur.pyr.flat, c.tables, (0, 2, 2.0, 2000.0, 10),
                                      query(OrbQuery.patches(1, 5).tables, 0))
         if ok:
             found += 1

@@ -122,10 +122,9 @@ def _epipolar_orb(cam, ref, cur, px, f, rho, T_cur_ref):
         out = []
         for i in range(len(px)):
             out.append(match_epipolar(
-                cam.params, ref.pyr.flat, ref.pyr.offsets, ref.pyr.widths, ref.pyr.heights,
-                px[i, 0], px[i, 1], 0, f[i], rho[i] * 1.2, rho[i] * 0.5, T_cur_ref,
-                cur.pyr.flat, cur.pyr.offsets, cur.pyr.widths, cur.pyr.heights, c.x, c.y, c.xn,
-                c.yn, c.row_start, 0, 2, 2.0, 2000.0, 10, query(orb.tables, i)))
+                cam.params, ref.pyr.layout, ref.pyr.flat, (px[i, 0], px[i, 1], 0, f[i]),
+                rho[i] * 1.2, rho[i] * 0.5, T_cur_ref, cur.pyr.flat, c.tables,
+                (0, 2, 2.0, 2000.0, 10), query(orb.tables, i)))
         pending.append(int(orb.pending[0]))
         orb.fill()
     return out, pending

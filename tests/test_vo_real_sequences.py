@@ -79,7 +79,7 @@ def test_frames_waiting_for_mapping_keep_their_points(data_dir, monkeypatch):
             stale.append(int((~same).sum()))
             tracker.mapper.step(old, is_kf)
 
-    monkeypatch.setattr(tracker, "_map_step", lagging_map_step)
+    monkeypatch.setattr(tracker.mapping, "submit", lagging_map_step)
     for t, image in seq.frames(None):
         tracker.process(image, t)
     assert len(stale) > 100

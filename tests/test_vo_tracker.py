@@ -94,20 +94,21 @@ def test_keyframe_reference_counts_the_keyframes_new_candidates():
     since the keyframe (a lagging mapping thread updates the candidates later)."""
     tracker = Tracker(small_camera(), TrackerConfig(candidate_min_updates=1, kf_min_frames=30,
                                                     kf_count_inliers=False))
-    tracker.kf_visible, tracker.frames_since_kf = 40, 0
-    assert not tracker._keyframe_due(45, True)
+    policy = tracker.tracking.keyframes
+    policy.kf_visible, policy.frames_since_kf = 40, 0
+    assert not policy.due(45, True)
     tracker.mapper.frames_since_keyframe += 1  # the mapper updated the candidates once
-    assert not tracker._keyframe_due(200, True)  # the candidates are tracked: reference 200
-    assert tracker.kf_visible == 200
-    assert not tracker._keyframe_due(205, True)  # not mapped since: the window is still open
-    assert tracker.kf_visible == 205
+    assert not policy.due(200, True)  # the candidates are tracked: reference 200
+    assert policy.kf_visible == 200
+    assert not policy.due(205, True)  # not mapped since: the window is still open
+    assert policy.kf_visible == 205
     tracker.mapper.frames_since_keyframe += 1
-    assert not tracker._keyframe_due(210, True)  # later frames no longer raise it
-    assert tracker.kf_visible == 205
-    assert not tracker._keyframe_due(150, True)  # 73%: too early for the 90% rule
-    assert not tracker._keyframe_due(130, False)  # under 70%, but only good frames qualify
-    assert tracker._keyframe_due(130, True)
-    assert (tracker.kf_visible, tracker.frames_since_kf) == (130, 0)
+    assert not policy.due(210, True)  # later frames no longer raise it
+    assert policy.kf_visible == 205
+    assert not policy.due(150, True)  # 73%: too early for the 90% rule
+    assert not policy.due(130, False)  # under 70%, but only good frames qualify
+    assert policy.due(130, True)
+    assert (policy.kf_visible, policy.frames_since_kf) == (130, 0)
 
 
 def test_bad_input_is_an_input_error():

@@ -4,14 +4,12 @@ The new keyframe and its covisible keyframes are free, with the converged points
 other keyframes observing those points are fixed (at least two: the monocular gauge includes
 scale). Points keep the map's parametrisation, inverse depth along their host keyframe's ray,
 and their depth filter's estimate enters as a prior: the filter has folded in every frame since
-the point was seeded, while the keyframes see it only two to four times. Without the prior, and
-with one fixed keyframe (scale free) and points seen by two keyframes, BA re-triangulated points
-from those few views; each call moved the local scale by ~1.4% and tracking drifted on from the
-inconsistent map (survey-down ATE 0.86 -> 4.8 m). A free keyframe needs enough observations in
-the problem (`ba_min_keyframe_obs`), else it is held: with points needing three views, free
-keyframes kept 0-12 of their ~50 observations and a BA placed them from those, 0.3-1.1 m off
-(kitti00 ATE 0.37 -> 2.6 m, survey-down 0.12 -> 7.2 m). A BA is skipped when the window already
-agrees to within `ba_min_rms_px` (it would only fit noise). A few trust-region iterations (scipy
+the point was seeded, while the keyframes see it only two to four times: without the prior, BA
+re-triangulated points from those few views, each call moved the local scale a little and
+tracking drifted on from the inconsistent map. A free keyframe needs enough observations in the
+problem (`ba_min_keyframe_obs`), else it is held: a BA would place it from a handful of points,
+worse than tracking did. A BA is skipped when the window already agrees to within
+`ba_min_rms_px` (it would only fit noise). A few trust-region iterations (scipy
 least_squares with the analytic sparse Jacobian), observations beyond the chi-square 95% bound
 (2 dof) dropped, more iterations. The problem is copied under the map lock, solved without
 it (tracking goes on; it ends early once a frame waits), and written back under the lock,
@@ -85,7 +83,7 @@ def build_problem(map_: Map, slot: int, camera: CameraModel,
     rows = np.flatnonzero(np.isin(obs.point, ids) & np.isin(obs.kf, alive_kf)
                           & (obs.kf != pts.host[obs.point]))
     # a keyframe the window barely sees is held: tracking placed it from all its matches,
-    # a handful of points would re-place it worse (kitti00: 6-12 of ~50, moved 1.1 m)
+    # a handful of points would re-place it worse
     links = np.bincount(np.concatenate((obs.kf[rows], pts.host[obs.point[rows]])),
                         minlength=len(map_.kf_pyr))
     free = [s for s in free if links[s] >= config.ba_min_keyframe_obs]
@@ -121,14 +119,12 @@ def pose_priors(keyframes: list, camera: CameraModel) -> np.ndarray:
     unit weight), centred on its current pose. A keyframe without a tracked pose (the
     initial map's) gets none (zeros).
 
-    Why: the BA sees a keyframe only through the converged points with several views, often
-    20-60 of its 100-200 matches. Without the rest it moved free keyframes along their weakly
-    determined tilt-shift direction, away from ground truth (survey-down: 0.01 -> 0.1 m,
-    0.1 -> 0.5 deg), also with the fixed keyframes and depth priors at ground truth, where
-    the observations' residuals were sub-pixel (rms 0.15-0.37 px): a few 0.5-1 px matches
-    among 0.1 px ones pulled them. Centred on the current pose, not the tracked one: a
-    keyframe a BA moved keeps that move (its map moved with it; kitti00 tracked-pose centre:
-    lost, 17.6 / 18.8 m on seeds 1 / 2)."""
+    Why: the BA sees a keyframe only through the converged points with several views, a
+    fraction of its matches; without the rest it moved free keyframes along their weakly
+    determined tilt-shift direction, away from the truth, even where every observation fit to
+    a fraction of a pixel (a few worse matches pulled them). Centred on the current pose, not
+    the tracked one: a keyframe a BA moved keeps that move (its map moved with it; centred on
+    the tracked pose, kitti00 lost the map)."""
     focal2 = camera.fx * camera.fy
     sqrt_info = np.zeros((len(keyframes), 6, 6))
     for k, kf in enumerate(keyframes):

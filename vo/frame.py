@@ -29,6 +29,8 @@ class Pyramid:
         sizes = self.widths * self.heights
         self.offsets = np.concatenate(([0], np.cumsum(sizes)[:-1])).astype(np.int64)
         self.flat = np.concatenate([im.ravel() for im in imgs])
+        # what kernels take to find a level in `flat` (the same for every frame of a camera)
+        self.layout = (self.offsets, self.widths, self.heights)
 
     @staticmethod
     def flat_size(width: int, height: int, levels: int) -> int:
@@ -81,6 +83,8 @@ class Corners:
             rows = self.y[lo:hi].astype(np.int64)
             self.row_start[level] = lo + np.searchsorted(rows, np.arange(max_h + 1), side="left")
         self.xn, self.yn = _normalised(camera.params, self.x, self.y, self.level)
+        # what the matching kernels take (vo.matcher.match_epipolar)
+        self.tables = (self.x, self.y, self.xn, self.yn, self.row_start)
 
     def level0(self) -> tuple[np.ndarray, np.ndarray]:
         """Corner coordinates in level-0 pixels."""

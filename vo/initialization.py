@@ -5,6 +5,7 @@ triangulation and scaling to a median depth."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import Enum
 
 import cv2
 import numpy as np
@@ -23,6 +24,13 @@ ROTATION_ONLY_FRACTION = 0.9
 # TIE_RATIO, or both are within TIE_FRACTION of the inlier threshold (rms)
 TIE_RATIO = 1.5
 TIE_FRACTION = 0.25
+
+
+class InitOutcome(Enum):
+    """What a step of the initialiser decided when it built no map."""
+
+    TRACKING = "tracking"  # keep tracking the reference's corners
+    RESTART = "restart"  # the reference cannot make a map: replace it by this frame
 
 
 @dataclass
@@ -149,9 +157,9 @@ class Initializer:
         self.px_cur = self.px_ref.copy()
         return True
 
-    def add(self, frame: Frame) -> InitialMap | str | None:
-        """Track into `frame`: an InitialMap when ready, None to keep going, 'restart' when the
-        reference should be replaced by this frame."""
+    def add(self, frame: Frame) -> InitialMap | InitOutcome:
+        """Track into `frame`: an InitialMap when ready, else whether to keep tracking or to
+        replace the reference by this frame."""
         nxt, status, _ = cv2.calcOpticalFlowPyrLK(
             self.ref.pyr.images[0], frame.pyr.images[0], self.px_ref, self.px_cur.copy(),
             winSize=LK_WINDOW, maxLevel=LK_LEVELS, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
@@ -159,14 +167,14 @@ class Initializer:
         ok = status.ravel().astype(bool) & self.camera.in_image(nxt, 1.0)
         self.px_ref, self.px_cur = self.px_ref[ok], nxt[ok]
         if len(self.px_ref) < self.config.init_min_tracked:
-            return "restart"
+            return InitOutcome.RESTART
         shift = np.linalg.norm(self.px_cur - self.px_ref, axis=1)
         if np.mean(shift) < self.config.init_min_disparity_px or self.rotation_only():
             # a turn alone (a drone tilting as it starts to move) shifts the tracks without
-            # parallax: its homography has no usable translation (walkers: 0.85 m ATE)
-            return None
+            # parallax: its homography has no usable translation
+            return InitOutcome.TRACKING
         result = self._two_view()
-        return "restart" if result is None else result
+        return InitOutcome.RESTART if result is None else result
 
     def at_rest(self) -> bool:
         """True while the tracks have moved less than init_ransac_px (median) since the

@@ -51,17 +51,16 @@ def shi_tomasi(flat, off, w, h, level, x, y):
 
 
 @numba.njit(cache=True, nogil=True)
-def _measure(params, ref_flat, u, v, level, f, rho, sigma, T_cur_ref, pyr_off, pyr_w, pyr_h,
-             cur_flat, cx, cy, cxn, cyn, c_row_start, max_level, margin, threshold, iterations,
+def _measure(params, layout, ref_flat, ref_obs, rho, sigma, T_cur_ref, cur_flat, corners, search,
              px_angle, orb):
-    """Epipolar match of one point and the inverse-depth measurement it gives:
-    (found, x, tau, u_cur, v_cur); `orb` as for match_epipolar."""
-    uc, vc, lv, ok = match_epipolar(params, ref_flat, pyr_off, pyr_w, pyr_h, u, v, level, f,
-                                    rho, sigma, T_cur_ref, cur_flat, pyr_off, pyr_w, pyr_h,
-                                    cx, cy, cxn, cyn, c_row_start, 0, max_level, margin,
-                                    threshold, iterations, orb)
+    """Epipolar match of one point (arguments as for vo.matcher.match_epipolar) and the
+    inverse-depth measurement it gives, its std from an error of `px_angle` (radians, at
+    level 0) in the match: (found, x, tau, u_cur, v_cur)."""
+    uc, vc, lv, ok = match_epipolar(params, layout, ref_flat, ref_obs, rho, sigma, T_cur_ref,
+                                    cur_flat, corners, search, orb)
     if not ok:
         return False, 0.0, 0.0, uc, vc
+    f = ref_obs[3]
     bx, by, bz = unproject_pixel(params, uc, vc)
     depth = triangulate_depth(T_cur_ref, f, np.array([bx, by, bz]))
     if depth <= 0.0:
@@ -71,27 +70,36 @@ def _measure(params, ref_flat, u, v, level, f, rho, sigma, T_cur_ref, pyr_off, p
 
 
 @numba.njit(cache=True, nogil=True)
-def update_candidates(params, idx, host, u, v, level, f, rho, sigma, a, b, rho_range, n_failed,
-                      n_updates, status, pos_w, kf_pyr, kf_T_c_w, T_c_w, pyr_off, pyr_w, pyr_h,
-                      cur_flat, cx, cy, cxn, cyn, c_row_start, max_level, margin, threshold,
-                      iterations, px_angle, max_failures, min_inlier, conv_L, orb, dry_run):
-    """Search every candidate idx in the current frame and fold the result into its filter
-    (with `dry_run`, only search: an ORB pass that collects the descriptors it needs).
+def update_candidates(params, points, idx, keyframes, T_c_w, layout, cur_flat, corners, search,
+                      update, orb, dry_run):
+    """Search every candidate idx in the current frame (pose T_c_w, pyramid `cur_flat`, FAST
+    `corners`) and fold the result into its filter (with `dry_run`, only search: an ORB pass
+    that collects the descriptors it needs).
+
+    `points` is the point table (host, u, v, level, f, rho, sigma, a, b, rho_range, n_failed,
+    n_updates, status, pos_w: PointStore columns, updated in place), `keyframes` the (pyramids,
+    T_c_w) of the map's slots, `layout` the pyramids' (offsets, widths, heights), `search` as
+    for match_epipolar, `update` = (px_angle, max_failures, min_inlier, conv_L): the angle of a
+    pixel, failed searches before a point is dropped, the inlier probability below which it is
+    dropped, the linearity index below which it has converged.
 
     Returns (found mask, level-0 positions (N, 2), delete mask)."""
+    host, u, v, level, f, rho, sigma, a, b, rho_range, n_failed, n_updates, status, pos_w = (
+        points)
+    kf_pyr, kf_T_c_w = keyframes
+    px_angle, max_failures, min_inlier, conv_L = update
     n = idx.shape[0]
     found = np.zeros(n, dtype=np.bool_)
     uv = np.zeros((n, 2))
     delete = np.zeros(n, dtype=np.bool_)
-    cam_pos = -(T_c_w[:3, :3].T @ T_c_w[:3, 3])
+    cam_pos = -(np.ascontiguousarray(T_c_w[:3, :3].T) @ np.ascontiguousarray(T_c_w[:3, 3]))
     for k in range(n):
         p = idx[k]
         T_w_h = inv_se3(kf_T_c_w[host[p]])
         T_cur_ref = T_c_w @ T_w_h
-        ok, x, tau, uc, vc = _measure(params, kf_pyr[host[p]], u[p], v[p], level[p], f[p],
-                                      rho[p], sigma[p], T_cur_ref, pyr_off, pyr_w, pyr_h,
-                                      cur_flat, cx, cy, cxn, cyn, c_row_start, max_level, margin,
-                                      threshold, iterations, px_angle, query(orb, k))
+        ok, x, tau, uc, vc = _measure(params, layout, kf_pyr[host[p]],
+                                      (u[p], v[p], level[p], f[p]), rho[p], sigma[p], T_cur_ref,
+                                      cur_flat, corners, search, px_angle, query(orb, k))
         if dry_run:
             continue
         if not ok:
@@ -108,7 +116,7 @@ def update_candidates(params, idx, host, u, v, level, f, rho, sigma, a, b, rho_r
         n_updates[p] += 1
         found[k] = True
         uv[k, 0], uv[k, 1] = uc, vc
-        pos_w[p] = T_w_h[:3, :3] @ (f[p] / m) + T_w_h[:3, 3]
+        pos_w[p] = np.ascontiguousarray(T_w_h[:3, :3]) @ (f[p] / m) + T_w_h[:3, 3]
         if aa / (aa + bb) < min_inlier:
             delete[k] = True
             continue
@@ -122,20 +130,22 @@ def update_candidates(params, idx, host, u, v, level, f, rho, sigma, a, b, rho_r
 
 
 @numba.njit(cache=True, nogil=True)
-def search_new(params, ref_flat, u, v, level, f, rho, sigma, rho0, sigma0, a0, b0, rho_range,
-               T_cur_ref, pyr_off, pyr_w, pyr_h, cur_flat, cx, cy, cxn, cyn, c_row_start,
-               max_level, margin, threshold, iterations, px_angle, orb):
+def search_new(params, layout, ref_flat, features, prior, T_cur_ref, cur_flat, corners, search,
+               px_angle, orb):
     """Search the new candidates of the reference keyframe still without a depth (rho NaN) in
     another keyframe; a match is the first depth-filter update of the prior (rho0 +- sigma0,
-    Beta(a0, b0)) and sets rho, sigma in place. One kernel for all of them: no GIL
-    round trip per point. `orb`: tables of vo.orb for feature k (as for match_epipolar)."""
+    Beta(a0, b0), range rho_range) and sets rho, sigma in place. `features` = (u, v, level, f,
+    rho, sigma) columns of the candidates, `prior` = (rho0, sigma0, a0, b0, rho_range), the
+    rest as for _measure. One kernel for all of them: no GIL round trip per point. `orb`:
+    tables of vo.orb for feature k (as for match_epipolar)."""
+    u, v, level, f, rho, sigma = features
+    rho0, sigma0, a0, b0, rho_range = prior
     for k in range(u.shape[0]):
         if not np.isnan(rho[k]):
             continue
-        found, x, tau, _, _ = _measure(
-            params, ref_flat, u[k], v[k], level[k], f[k], rho0, sigma0, T_cur_ref, pyr_off,
-            pyr_w, pyr_h, cur_flat, cx, cy, cxn, cyn, c_row_start, max_level, margin, threshold,
-            iterations, px_angle, query(orb, k))
+        found, x, tau, _, _ = _measure(params, layout, ref_flat, (u[k], v[k], level[k], f[k]),
+                                       rho0, sigma0, T_cur_ref, cur_flat, corners, search,
+                                       px_angle, query(orb, k))
         if not found:
             continue
         m, s2, _, _ = update_seed(rho0, sigma0 ** 2, a0, b0, x, tau * tau, rho_range)
@@ -169,12 +179,14 @@ class Mapper:
         # mapping thread here until the frame's estimate is on its way (daemon.tracking)
         self.before_step: Callable[[Frame], None] = lambda frame: None
 
-    def _search_args(self, frame: Frame):
+    def _target(self, frame: Frame) -> tuple:
+        """What a search in `frame` takes: (pyramid layout, flat pyramid, FAST corners,
+        search settings of vo.matcher.match_epipolar)."""
         c = frame.corners(self.config.fast_threshold)
-        pyr = frame.pyr
-        return (pyr.offsets, pyr.widths, pyr.heights, pyr.flat, c.x, c.y, c.xn, c.yn,
-                c.row_start, self.config.match_max_level, self.config.epipolar_margin_px,
-                self.config.zmssd_threshold, self.config.align2d_iterations, self.px_angle)
+        cfg = self.config
+        search = (0, cfg.match_max_level, cfg.epipolar_margin_px, cfg.zmssd_threshold,
+                  cfg.align2d_iterations)
+        return frame.pyr.layout, frame.pyr.flat, c.tables, search
 
     def step(self, frame: Frame, keyframe: bool) -> None:
         """Process one tracked frame (and make it a keyframe when asked)."""
@@ -188,29 +200,36 @@ class Mapper:
         cand = cand[pts.host[cand] != frame.slot]
         found_uv = np.zeros((0, 2))
         if len(cand):
-            args = self._search_args(frame)
-            orb = self._orb_query(frame, cand, pts.desc, pts.desc_state, self._describe_points)
-
-            def search(dry_run: bool):
-                return update_candidates(
-                    self.camera.params, cand, pts.host, pts.u, pts.v, pts.level, pts.f,
-                    pts.rho, pts.sigma, pts.a, pts.b, pts.rho_range, pts.n_failed,
-                    pts.n_updates, pts.status, pts.pos_w, self.map.kf_pyr, self.map.kf_T_c_w,
-                    frame.T_c_w, *args, self.config.seed_max_failures,
-                    self.config.min_inlier_probability, self.config.convergence_L,
-                    orb.tables, dry_run)
-
-            if orb.max_distance >= 0:
-                search(True)
-                orb.fill()
-            found, uv, delete = search(False)
-            with self.map.lock:
-                pts.delete(cand[delete])
-            found_uv = uv[found & ~delete]
+            found_uv = self._update_candidates(frame, cand)
         if keyframe:
             self.add_keyframe(frame, found_uv)
         else:
             self.frames_since_keyframe += 1
+
+    def _update_candidates(self, frame: Frame, cand: np.ndarray) -> np.ndarray:
+        """Depth-filter update of candidate points `cand` from their matches in frame; the
+        level-0 pixels where the points still in the map were found."""
+        cfg = self.config
+        pts = self.map.points
+        layout, flat, corners, search = self._target(frame)
+        orb = self._orb_query(frame, cand, pts.desc, pts.desc_state, self._describe_points)
+        table = (pts.host, pts.u, pts.v, pts.level, pts.f, pts.rho, pts.sigma, pts.a, pts.b,
+                 pts.rho_range, pts.n_failed, pts.n_updates, pts.status, pts.pos_w)
+        update = (self.px_angle, cfg.seed_max_failures, cfg.min_inlier_probability,
+                  cfg.convergence_L)
+
+        def search_all(dry_run: bool):
+            return update_candidates(self.camera.params, table, cand,
+                                     (self.map.kf_pyr, self.map.kf_T_c_w), frame.T_c_w, layout,
+                                     flat, corners, search, update, orb.tables, dry_run)
+
+        if orb.max_distance >= 0:
+            search_all(True)
+            orb.fill()
+        found, uv, delete = search_all(False)
+        with self.map.lock:
+            pts.delete(cand[delete])
+        return uv[found & ~delete]
 
     def add_keyframe(self, frame: Frame, occupied_uv: np.ndarray) -> None:
         """Insert `frame` as a keyframe, seed candidates in its empty cells, cap keyframes."""
@@ -224,8 +243,6 @@ class Mapper:
         if len(depths) == 0:
             return
         d_med, d_min = float(np.median(depths)), float(np.min(depths))
-        rho0 = 1.0 / d_med
-        sigma0 = cfg.seed_sigma_ratio * rho0
         u, v, level = self._new_features(frame, np.vstack((frame.feat_px, occupied_uv)))
         if len(u) == 0:
             return
@@ -233,27 +250,9 @@ class Mapper:
         T_w_new = frame.T_w_c
         rho = np.full(len(u), np.nan)
         sigma = np.full(len(u), np.nan)
-        levels = cfg.pyramid_levels
-        desc = np.zeros((len(u), levels, DESC_BYTES), dtype=np.uint8)
-        desc_state = np.zeros((len(u), levels), dtype=np.int8)
-
-        def describe_new(rows: np.ndarray, need: np.ndarray) -> None:
-            d, st = desc[rows], desc_state[rows]
-            describe_levels(frame.pyr.images, u[rows], v[rows], need, d, st)
-            desc[rows], desc_state[rows] = d, st
-
-        for other in self._search_keyframes(frame, slot):
-            if not np.isnan(rho).any():
-                break
-            kf = self.map.keyframes[other]
-            T_cur_ref = kf.T_c_w @ T_w_new
-            orb = self._orb_query(kf, np.arange(len(u)), desc, desc_state, describe_new)
-            args = (self.camera.params, frame.pyr.flat, u, v, level, f, rho, sigma, rho0,
-                    sigma0, cfg.seed_a, cfg.seed_b, 1.0 / d_min, T_cur_ref,
-                    *self._search_args(kf))
-            search_new(*args, orb.tables)
-            if orb.fill():  # an ORB pass matches what it can and collects what it needs
-                search_new(*args, orb.tables)
+        rho0 = 1.0 / d_med
+        prior = (rho0, cfg.seed_sigma_ratio * rho0, cfg.seed_a, cfg.seed_b, 1.0 / d_min)
+        desc, desc_state = self._seed_depths(frame, slot, (u, v, level, f, rho, sigma), prior)
         if cfg.seed_plane_sigma > 0:
             self._seed_on_plane(frame, f, rho, sigma)
         new = np.flatnonzero(np.isfinite(rho))
@@ -271,6 +270,36 @@ class Mapper:
             self.shortened_ba += int(self._ba_cut)
         else:
             self.skipped_ba += int(cfg.local_ba)
+
+    def _seed_depths(self, frame: Frame, slot: int, features: tuple,
+                     prior: tuple) -> tuple[np.ndarray, np.ndarray]:
+        """Search new features (u, v, level, f, rho, sigma; rho NaN) of keyframe `frame` in its
+        covisible keyframes until each has a depth: a match is the first update of the depth
+        filter from `prior` (rho0, sigma0, a0, b0, rho_range), set in rho, sigma. Returns the
+        ORB descriptors (and their states) computed for the features meanwhile."""
+        u, v, _, _, rho, _ = features
+        levels = self.config.pyramid_levels
+        desc = np.zeros((len(u), levels, DESC_BYTES), dtype=np.uint8)
+        desc_state = np.zeros((len(u), levels), dtype=np.int8)
+
+        def describe_new(rows: np.ndarray, need: np.ndarray) -> None:
+            d, st = desc[rows], desc_state[rows]
+            describe_levels(frame.pyr.images, u[rows], v[rows], need, d, st)
+            desc[rows], desc_state[rows] = d, st
+
+        T_w_new = frame.T_w_c
+        for other in self._search_keyframes(frame, slot):
+            if not np.isnan(rho).any():
+                break
+            kf = self.map.keyframes[other]
+            orb = self._orb_query(kf, np.arange(len(u)), desc, desc_state, describe_new)
+            layout, flat, corners, search = self._target(kf)
+            args = (self.camera.params, layout, frame.pyr.flat, features, prior,
+                    kf.T_c_w @ T_w_new, flat, corners, search, self.px_angle)
+            search_new(*args, orb.tables)
+            if orb.fill():  # an ORB pass matches what it can and collects what it needs
+                search_new(*args, orb.tables)
+        return desc, desc_state
 
     def _seed_on_plane(self, frame: Frame, f: np.ndarray, rho: np.ndarray,
                        sigma: np.ndarray) -> None:

@@ -63,8 +63,8 @@ def search_level(A, max_level):
 @numba.njit(cache=True, nogil=True)
 def triangulate_depth(T_cur_ref, f_ref, f_cur):
     """Depth along f_ref (reference frame) of the point closest to both rays; <= 0 if none."""
-    R = T_cur_ref[:3, :3]
-    t = T_cur_ref[:3, 3]
+    R = np.ascontiguousarray(T_cur_ref[:3, :3])  # contiguous operands for BLAS
+    t = np.ascontiguousarray(T_cur_ref[:3, 3])
     a = R @ f_ref
     # minimise |d_ref * a + t - d_cur * f_cur|
     aa = a @ a
@@ -81,8 +81,8 @@ def triangulate_depth(T_cur_ref, f_ref, f_cur):
 @numba.njit(cache=True, nogil=True)
 def inverse_depth_sigma(T_cur_ref, f_ref, depth, px_angle):
     """Std of the inverse depth caused by a `px_angle` error in the current observation."""
-    R = T_cur_ref[:3, :3]
-    t = -(R.T @ T_cur_ref[:3, 3])  # current camera centre in the reference frame
+    R_t = np.ascontiguousarray(T_cur_ref[:3, :3].T)  # contiguous operands for BLAS
+    t = -(R_t @ np.ascontiguousarray(T_cur_ref[:3, 3]))  # current camera centre in the ref
     tn = np.sqrt(t @ t)
     if tn < 1e-12:
         return 1e10
@@ -99,12 +99,16 @@ def inverse_depth_sigma(T_cur_ref, f_ref, depth, px_angle):
 
 
 @numba.njit(cache=True, nogil=True)
-def match_direct(params, ref_flat, ref_off, ref_w, ref_h, ref_u, ref_v, ref_level, f_ref, depth,
-                 T_cur_ref, cur_flat, cur_off, cur_w, cur_h, u, v, max_level, iterations):
+def match_direct(params, layout, ref_flat, ref_obs, depth, T_cur_ref, cur_flat, u, v, max_level,
+                 iterations):
     """Refine the predicted level-0 pixel (u, v) of a point in the current frame.
 
+    `layout` is the (offsets, widths, heights) of both pyramids (one camera), `ref_obs` the
+    reference observation (level-0 u, v, level, bearing f) of the point at `depth` along f.
     Returns (u, v, level, ok) with (u, v) at level 0.
     """
+    off, w, h = layout
+    ref_u, ref_v, ref_level, f_ref = ref_obs
     A = affine_cur_ref(params, T_cur_ref, f_ref, depth, ref_u, ref_v, ref_level)
     if np.isnan(A[0, 0]) or np.isnan(A[1, 1]):
         return u, v, 0, False
@@ -114,11 +118,11 @@ def match_direct(params, ref_flat, ref_off, ref_w, ref_h, ref_u, ref_v, ref_leve
     level = search_level(A, max_level)
     A_ref_cur = np.linalg.inv(A)
     patch = np.empty((BORDER_PATCH, BORDER_PATCH))
-    if not warp_patch(ref_flat, ref_off[ref_level], ref_w[ref_level], ref_h[ref_level],
-                      A_ref_cur, ref_u, ref_v, ref_level, level, patch):
+    if not warp_patch(ref_flat, off[ref_level], w[ref_level], h[ref_level], A_ref_cur, ref_u,
+                      ref_v, ref_level, level, patch):
         return u, v, level, False
-    ul, vl, ok = align2d(cur_flat, cur_off[level], cur_w[level], cur_h[level], patch,
-                         to_level(u, level), to_level(v, level), iterations)
+    ul, vl, ok = align2d(cur_flat, off[level], w[level], h[level], patch, to_level(u, level),
+                         to_level(v, level), iterations)
     return from_level(ul, level), from_level(vl, level), level, ok
 
 
@@ -136,24 +140,32 @@ def _segment_distance(px, py, ax, ay, bx, by):
 
 
 @numba.njit(cache=True, nogil=True)
-def match_epipolar(params, ref_flat, ref_off, ref_w, ref_h, ref_u, ref_v, ref_level, f_ref,
-                   rho, sigma, T_cur_ref, cur_flat, cur_off, cur_w, cur_h, cx, cy, cxn, cyn,
-                   c_row_start, min_level, max_level, margin_px, threshold, iterations, orb):
+def match_epipolar(params, layout, ref_flat, ref_obs, rho, sigma, T_cur_ref, cur_flat, corners,
+                   search, orb):
     """Search a point with inverse depth rho +- 2 sigma along its epipolar segment in the
-    current frame, among its FAST corners (cx, cy per level, normalised cxn, cyn) of levels
-    min_level..max_level. Returns (u, v, level, ok) at level 0.
+    current frame, among its FAST corners. Returns (u, v, level, ok) at level 0.
+
+    `layout` is the (offsets, widths, heights) of both pyramids, `ref_obs` the reference
+    observation (level-0 u, v, level, bearing f), `corners` the current frame's FAST corners
+    (x, y per level, normalised xn, yn, row_start: vo.frame.Corners.tables), `search` the
+    (min_level, max_level, margin_px, threshold, iterations) of the search: corners of levels
+    min_level..max_level within margin_px (scaled by the level) of the segment.
 
     Candidates are scored by ZMSSD of the affine-warped patch (below `threshold` per pixel),
     or, when orb[0] (the maximum distance) >= 0, by the Hamming distance of ORB descriptors
     (vo.orb.query: the point's per-level descriptors, the frame's corner descriptors; missing
     ones are marked as needed and the search fails as pending)."""
+    off, widths, heights = layout
+    ref_u, ref_v, ref_level, f_ref = ref_obs
+    cx, cy, cxn, cyn, c_row_start = corners
+    min_level, max_level, margin_px, threshold, iterations = search
     if not (rho > 0.0 and sigma > 0.0 and np.isfinite(rho + sigma)):
         return 0.0, 0.0, 0, False
     rho_far = max(rho - 2.0 * sigma, MIN_RHO)
     rho_near = rho + 2.0 * sigma
     # sample the segment to bound it in distorted pixels; endpoints in the normalised plane
     n_samples = 9
-    limit = 4.0 * (cur_w[0] + cur_h[0])
+    limit = 4.0 * (widths[0] + heights[0])
     umin, umax, vmin, vmax = 1e18, -1e18, 1e18, -1e18
     ax = ay = bx = by = 0.0
     for k in range(n_samples):
@@ -195,14 +207,14 @@ def match_epipolar(params, ref_flat, ref_off, ref_w, ref_h, ref_u, ref_v, ref_le
             if orb[2][rl] == UNKNOWN:
                 orb[3][rl] = True
                 orb[7][0] += 1
-        elif not warp_patch(ref_flat, ref_off[ref_level], ref_w[ref_level], ref_h[ref_level],
+        elif not warp_patch(ref_flat, off[ref_level], widths[ref_level], heights[ref_level],
                             A_ref_cur, ref_u, ref_v, ref_level, level, patch):
             continue
         s = 2.0 ** level
         m = margin_px * s
         tol = m / focal
-        w = cur_w[level]
-        h = cur_h[level]
+        w = widths[level]
+        h = heights[level]
         r0 = int(min(max(to_level(vmin - m, level), 0.0), h - 1.0))
         r1 = int(min(max(to_level(vmax + m, level) + 1.0, 0.0), h - 1.0))
         lo_u = to_level(umin - m, level)
@@ -218,7 +230,7 @@ def match_epipolar(params, ref_flat, ref_off, ref_w, ref_h, ref_u, ref_v, ref_le
                 if _segment_distance(cxn[i], cyn[i], ax, ay, bx, by) > tol:
                     continue
                 if not use_orb:
-                    score = zmssd(patch, cur_flat, cur_off[level], w, int(x), int(y))
+                    score = zmssd(patch, cur_flat, off[level], w, int(x), int(y))
                 elif orb[5][i] == UNKNOWN:
                     orb[6][i] = True
                     orb[7][0] += 1
@@ -234,17 +246,17 @@ def match_epipolar(params, ref_flat, ref_off, ref_w, ref_h, ref_u, ref_v, ref_le
         return 0.0, 0.0, 0, False
     lv = best_level
     u0, v0 = from_level(best_x, lv), from_level(best_y, lv)
-    if not warp_patch(ref_flat, ref_off[ref_level], ref_w[ref_level], ref_h[ref_level],
+    if not warp_patch(ref_flat, off[ref_level], widths[ref_level], heights[ref_level],
                       A_ref_cur, ref_u, ref_v, ref_level, lv, patch):
         return u0, v0, lv, use_orb  # a descriptor match whose patch cannot be refined
-    ul, vl, ok = align2d(cur_flat, cur_off[lv], cur_w[lv], cur_h[lv], patch, best_x, best_y,
+    ul, vl, ok = align2d(cur_flat, off[lv], widths[lv], heights[lv], patch, best_x, best_y,
                          iterations)
     if ok and (ul - best_x) ** 2 + (vl - best_y) ** 2 <= 4.0:
         u0, v0 = from_level(ul, lv), from_level(vl, lv)
-    if lv > 0 and warp_patch(ref_flat, ref_off[ref_level], ref_w[ref_level], ref_h[ref_level],
+    if lv > 0 and warp_patch(ref_flat, off[ref_level], widths[ref_level], heights[ref_level],
                              A_ref_cur, ref_u, ref_v, ref_level, 0, patch):
         # a last sub-pixel step at full resolution
-        uf, vf, ok = align2d(cur_flat, cur_off[0], cur_w[0], cur_h[0], patch, u0, v0,
+        uf, vf, ok = align2d(cur_flat, off[0], widths[0], heights[0], patch, u0, v0,
                              iterations)
         if ok and (uf - u0) ** 2 + (vf - v0) ** 2 < 4.0:
             u0, v0 = uf, vf

@@ -6,7 +6,7 @@ A hypothesis is fitted with the pose optimiser's weights (each match scaled down
 level), but inliers are judged by the reprojection error in the image, as the thesis says:
 thresholds are image pixels divided by the focal length. Judged at the match's level, a 2 px
 threshold let 8 px through at level 2, and people mapped while they stood kept passing as
-inliers as they walked off (walkers at 320x240: 0.059 m, in image pixels 0.024 m).
+inliers as they walked off.
 """
 
 from __future__ import annotations

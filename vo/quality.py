@@ -3,18 +3,19 @@
 from __future__ import annotations
 
 from vo.config import TrackerConfig
+from vo.result import Quality
 
 
-def classify(n_matches: int, n_attempts: int, config: TrackerConfig) -> str:
-    """'good' when matched/attempted > ratio; 'bad' when not and matches < minimum; else
-    'insufficient'. The tracker counts as matched the matches that survive the pose
+def classify(n_matches: int, n_attempts: int, config: TrackerConfig) -> Quality:
+    """GOOD when matched/attempted > ratio; BAD when not and matches < minimum; else
+    INSUFFICIENT. The tracker counts as matched the matches that survive the pose
     refinement (inliers)."""
     ratio = n_matches / n_attempts if n_attempts > 0 else 0.0
     if ratio > config.quality_min_ratio:
-        return "good"
+        return Quality.GOOD
     if n_matches < config.quality_min_matches:
-        return "bad"
-    return "insufficient"
+        return Quality.BAD
+    return Quality.INSUFFICIENT
 
 
 class LostCounter:
@@ -24,7 +25,7 @@ class LostCounter:
         self.limit = config.lost_after_bad
         self.bad_run = 0
 
-    def update(self, quality: str) -> bool:
+    def update(self, quality: Quality) -> bool:
         """Record one frame's quality; True when tracking is now lost."""
-        self.bad_run = self.bad_run + 1 if quality == "bad" else 0
+        self.bad_run = self.bad_run + 1 if quality == Quality.BAD else 0
         return self.bad_run >= self.limit

@@ -6,7 +6,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from calib.camera import project_point, unproject_pixel
+from calib.camera import CameraModel, project_point, unproject_pixel
+from vo.config import TrackerConfig
+from vo.frame import Frame
+from vo.map import Map
 from vo.matcher import match_direct, match_epipolar
 from vo.orb import OrbQuery, query
 from vo.se3 import inv_se3, transform
@@ -35,11 +38,13 @@ def project_visible(params, T_c_w, pos_w, idx, width, height, margin, max_r2):
 
 
 @numba.njit(cache=True, nogil=True)
-def closest_views(params, idx, pos_w, host, hu, hv, hlevel, host_only, start, order, obs_kf,
-                  obs_uv, obs_level, kf_T_c_w, cur_centre):
-    """Per point, the keyframe observation whose viewing ray is closest to the current one
-    (the host's own detection included; only the host where host_only): slot, level-0 pixel,
-    level, bearing, ray depth."""
+def closest_views(params, idx, pos_w, hosts, host_only, obs, kf_T_c_w, cur_centre):
+    """Per point idx[k], the keyframe observation whose viewing ray is closest to the current
+    one: the host's own detection, hosts = (slot, u, v, level) per k, or one of the map's
+    observations, obs = (start, order: Observations.by_point; kf, uv, level columns); only the
+    host where host_only[k]. Returns slot, level-0 pixel, level, bearing, ray depth."""
+    host, hu, hv, hlevel = hosts
+    start, order, obs_kf, obs_uv, obs_level = obs
     n = idx.shape[0]
     slot = np.empty(n, dtype=np.int64)
     uv = np.empty((n, 2))
@@ -60,8 +65,9 @@ def closest_views(params, idx, pos_w, host, hu, hv, hlevel, host_only, start, or
                 o = order[start[p] + j]
                 s, u, v, lv = obs_kf[o], obs_uv[o, 0], obs_uv[o, 1], obs_level[o]
             T = kf_T_c_w[s]
-            X = T[:3, :3] @ P + T[:3, 3]
-            r = X @ T[:3, :3]  # ray from the keyframe centre to P, in the world
+            R = np.ascontiguousarray(T[:3, :3])  # a contiguous operand for BLAS
+            X = R @ P + T[:3, 3]
+            r = X @ R  # ray from the keyframe centre to P, in the world
             c = (r @ rc) / max(np.sqrt(r @ r), 1e-12)
             if c > best:
                 best = c
@@ -72,24 +78,37 @@ def closest_views(params, idx, pos_w, host, hu, hv, hlevel, host_only, start, or
 
 
 @numba.njit(cache=True, nogil=True)
-def match_in_cells(params, order, px, cell, T_c_w, host, huv, hlevel, f, depth, rho, sigma,
-                   search, kf_pyr, kf_T_c_w, pyr_off, pyr_w, pyr_h, cur_flat, corners,
-                   max_level, search_levels, max_matches, iterations, margin, threshold,
-                   fallback, done, tried, lookahead, orb):
-    """Try points in `order` (grouped by cell, best first); the first success closes its cell.
+def match_in_cells(params, T_c_w, cands, keyframes, layout, cur_flat, corners, search, options,
+                   state, orb):
+    """Try the candidate points in their `order` (grouped by cell, best first); the first
+    success closes its cell.
 
-    Points flagged `search` (uncertain depth) are searched along their epipolar segment
-    (rho +- 2 sigma) among the FAST `corners` (x, y, xn, yn, row_start) of the levels
-    search_levels (min, max); the others are aligned directly at their predicted position
-    (with ORB, orb[0] >= 0, searched along a short segment around it: descriptors need
-    corners).
+    `cands` = (order, px, cell, slot, ref_uv, ref_level, f, depth, rho, sigma, uncertain):
+    per point its predicted level-0 pixel and grid cell, the reference observation to match
+    from (keyframe slot, level-0 pixel, level, bearing, ray depth), inverse depth +- sigma,
+    and whether its depth is uncertain. `keyframes` = (pyramids, T_c_w) of the map's slots,
+    `layout` the pyramids' (offsets, widths, heights), `corners` the frame's FAST corners
+    (vo.frame.Corners.tables), `search` the epipolar search (min_level, max_level, margin_px,
+    threshold, iterations: vo.matcher.match_epipolar), `options` = (direct_max_level,
+    max_matches, fallback).
 
-    `done` (per cell) and `tried` (per point) carry over between passes: a point whose
-    descriptors are pending (vo.orb) is retried in the next pass, and up to `lookahead` later
-    points of its cell are looked at meanwhile (their descriptors collected, results held back).
+    Uncertain points are searched along their epipolar segment (rho +- 2 sigma); the others
+    are aligned directly at their predicted position (with ORB, orb[0] >= 0, searched along a
+    short segment around it: descriptors need corners), and with `fallback` searched so when
+    that fails.
 
-    Returns (matched positions into order's arrays, u, v, level) of this pass.
+    `state` = (done per cell, tried per point, lookahead) carries over between passes: a
+    point whose descriptors are pending (vo.orb) is retried in the next pass, and up to
+    `lookahead` later points of its cell are looked at meanwhile (their descriptors
+    collected, results held back).
+
+    Returns (matched positions into the candidate arrays, u, v, level) of this pass.
     """
+    order, px, cell, host, huv, hlevel, f, depth, rho, sigma, uncertain = cands
+    kf_pyr, kf_T_c_w = keyframes
+    min_level, search_max_level, margin, threshold, iterations = search
+    max_level, max_matches, fallback = options
+    done, tried, lookahead = state
     n = order.shape[0]
     waiting = np.zeros(done.shape[0], dtype=np.int64)
     out_k = np.empty(n, dtype=np.int64)
@@ -105,28 +124,27 @@ def match_in_cells(params, order, px, cell, T_c_w, host, huv, hlevel, f, depth, 
             continue
         s = host[k]
         T_cur_ref = T_c_w @ inv_se3(kf_T_c_w[s])
+        ref_obs = (huv[k, 0], huv[k, 1], hlevel[k], f[k])
         pending = orb[8][0]
         u = v = 0.0
         level = 0
         r, r_sigma, r_margin = rho[k], sigma[k], margin
         ok = False
-        if not search[k]:
+        if not uncertain[k]:
             if not use_orb:
-                u, v, level, ok = match_direct(
-                    params, kf_pyr[s], pyr_off, pyr_w, pyr_h, huv[k, 0], huv[k, 1], hlevel[k],
-                    f[k], depth[k], T_cur_ref, cur_flat, pyr_off, pyr_w, pyr_h, px[k, 0],
-                    px[k, 1], max_level, iterations)
+                u, v, level, ok = match_direct(params, layout, kf_pyr[s], ref_obs, depth[k],
+                                               T_cur_ref, cur_flat, px[k, 0], px[k, 1],
+                                               max_level, iterations)
             # ORB, or prediction too far off for direct alignment: search FAST corners along
             # the point's (short) epipolar segment as the thesis matcher does
             r = 1.0 / depth[k]
             r_sigma = r * max(sigma[k] / rho[k], 0.05)
             r_margin = 2.0 * margin
-        if not ok and (search[k] or use_orb or (fallback and corners[0].shape[0] > 0)):
+        if not ok and (uncertain[k] or use_orb or (fallback and corners[0].shape[0] > 0)):
             u, v, level, ok = match_epipolar(
-                params, kf_pyr[s], pyr_off, pyr_w, pyr_h, huv[k, 0], huv[k, 1], hlevel[k], f[k],
-                r, r_sigma, T_cur_ref, cur_flat, pyr_off, pyr_w, pyr_h, corners[0], corners[1],
-                corners[2], corners[3], corners[4], search_levels[0], search_levels[1],
-                r_margin, threshold, iterations, query(orb, k))
+                params, layout, kf_pyr[s], ref_obs, r, r_sigma, T_cur_ref, cur_flat, corners,
+                (min_level, search_max_level, r_margin, threshold, iterations),
+                query(orb, k))
         if orb[8][0] > pending or waiting[c] > 0:
             waiting[c] += 1
             continue
@@ -144,8 +162,10 @@ def match_in_cells(params, order, px, cell, T_c_w, host, huv, hlevel, f, depth, 
 class Reprojector:
     """Per-frame projection and grid-limited matching of map points."""
 
-    def __init__(self, camera, cell: int, seed: int):
+    def __init__(self, camera: CameraModel, config: TrackerConfig):
         width, height = camera.width, camera.height
+        cell = config.grid_cell
+        self.camera, self.config = camera, config
         self.width, self.height, self.cell = width, height, cell
         corners = np.array([[0, 0], [width - 1, 0], [0, height - 1], [width - 1, height - 1]],
                            dtype=np.float64)
@@ -154,71 +174,89 @@ class Reprojector:
         self.cols = (width + cell - 1) // cell
         self.n_cells = self.cols * ((height + cell - 1) // cell)
         # a fixed random cell order, so the match cap does not favour the image top
-        self.cell_rank = np.random.default_rng(seed).permutation(self.n_cells)
+        self.cell_rank = np.random.default_rng(config.seed).permutation(self.n_cells)
+        cfg = config
+        self.options = (cfg.pyramid_levels - 1, cfg.max_matches, cfg.track_search_fallback)
 
     def cell_of(self, px: np.ndarray) -> np.ndarray:
         """Grid cell index of level-0 pixels."""
         return (px[:, 1] // self.cell).astype(np.int64) * self.cols + (
             px[:, 0] // self.cell).astype(np.int64)
 
-    def run(self, params, frame, pts, obs, idx: np.ndarray, search: np.ndarray, kf_pyr,
-            kf_T_c_w, config, fill_point_descriptors=None):
-        """Match points `idx` of store `pts` in `frame` (pose T_c_w set to its prior).
-
-        With config.matcher "orb", `fill_point_descriptors(point ids, need (N, levels))`
-        describes map points at their host keyframe.
+    def run(self, frame: Frame, map_: Map, idx: np.ndarray, uncertain: np.ndarray):
+        """Match points `idx` of the map in `frame` (pose T_c_w set to its prior); those
+        flagged `uncertain` are searched along their epipolar segments.
 
         Returns (point ids, uv (M, 2), levels, n_visible, n_attempts, attempted point ids).
         """
-        px, vis = project_visible(params, frame.T_c_w, pts.pos_w, idx, self.width, self.height,
-                                  8.0, self.max_r2)
-        idx, px, search = idx[vis], px[vis], search[vis]
-        if len(idx) == 0:
+        cands = self._candidates(frame, map_, idx, uncertain)
+        if cands is None:
             empty = np.zeros(0, dtype=np.int64)
             return empty, np.zeros((0, 2)), empty, 0, 0, empty
-        use_orb = config.matcher == "orb"
+        idx = cands[-1]
+        cfg = self.config
+        use_orb = cfg.matcher == "orb"
+        corners = _NO_CORNERS
+        c = None
+        if cands[-2].any() or cfg.track_search_fallback or use_orb:
+            c = frame.corners(cfg.fast_threshold, cfg.track_corner_level)
+            corners = c.tables
+        pts = map_.points
+        if use_orb:
+            orb = OrbQuery(cfg.orb_max_distance, idx, pts.desc, pts.desc_state,
+                           cfg.pyramid_levels, frame.orb, c, map_.describe_points)
+        else:
+            orb = OrbQuery.patches(len(idx), cfg.pyramid_levels)
+        tried = np.zeros(len(idx), dtype=np.bool_)
+        k, uv, level = self._match_passes(frame, map_, cands[:-1], corners, orb, tried)
+        return idx[k], uv, level, len(idx), int(tried.sum()), idx[tried]
+
+    def _candidates(self, frame: Frame, map_: Map, idx: np.ndarray, uncertain: np.ndarray):
+        """The candidate table of match_in_cells for the points idx visible in frame, with
+        the point ids last; None when none is visible."""
+        pts, obs = map_.points, map_.obs
+        px, vis = project_visible(self.camera.params, frame.T_c_w, pts.pos_w, idx, self.width,
+                                  self.height, 8.0, self.max_r2)
+        idx, px, uncertain = idx[vis], px[vis], uncertain[vis]
+        if len(idx) == 0:
+            return None
         cell = self.cell_of(px)
         order = np.lexsort((-pts.n_found[idx], self.cell_rank[cell]))
         start, obs_order = obs.by_point(pts.capacity)
         # ORB descriptors are kept for the host's view: match against the host then
         slot, ref_uv, ref_level, f, depth = closest_views(
-            params, idx, pts.pos_w, pts.host[idx], pts.u[idx], pts.v[idx], pts.level[idx],
-            search | use_orb, start, obs_order, obs.kf, obs.uv, obs.level, kf_T_c_w,
-            frame.position)
-        pyr = frame.pyr
-        levels = config.pyramid_levels
-        c = None
-        min_level = config.track_corner_level
-        if search.any() or config.track_search_fallback or use_orb:
-            c = frame.corners(config.fast_threshold, min_level)
-            corners = (c.x, c.y, c.xn, c.yn, c.row_start)
-        else:
-            corners = (np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0),
-                       np.zeros((1, 1), dtype=np.int64))
-        if use_orb:
-            orb = OrbQuery(config.orb_max_distance, idx, pts.desc, pts.desc_state, levels,
-                           frame.orb, c, fill_point_descriptors)
-        else:
-            orb = OrbQuery.patches(len(idx), levels)
+            self.camera.params, idx, pts.pos_w,
+            (pts.host[idx], pts.u[idx], pts.v[idx], pts.level[idx]),
+            uncertain | (self.config.matcher == "orb"),
+            (start, obs_order, obs.kf, obs.uv, obs.level), map_.kf_T_c_w, frame.position)
+        return (order, px, cell, slot, ref_uv, ref_level, f, depth, pts.rho[idx],
+                pts.sigma[idx], uncertain, idx)
+
+    def _match_passes(self, frame: Frame, map_: Map, cands: tuple, corners: tuple,
+                      orb: OrbQuery, tried: np.ndarray):
+        """match_in_cells until no ORB descriptor is pending (one pass with patches):
+        positions into the candidates, u, v, level; `tried` marks the points tried."""
+        cfg = self.config
+        search = (cfg.track_corner_level, cfg.match_max_level, cfg.epipolar_margin_px,
+                  cfg.zmssd_threshold, cfg.align2d_iterations)
         done = np.zeros(self.n_cells, dtype=np.bool_)
-        tried = np.zeros(len(idx), dtype=np.bool_)
         found: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        max_level, max_matches, fallback = self.options
         lookahead, n_found = 1, 0
         while True:
             k, uv, level = match_in_cells(
-                params, order, px, cell, frame.T_c_w, slot, ref_uv, ref_level, f, depth,
-                pts.rho[idx], pts.sigma[idx], search, kf_pyr, kf_T_c_w, pyr.offsets, pyr.widths,
-                pyr.heights, pyr.flat, corners, levels - 1,
-                (min_level, config.match_max_level),
-                config.max_matches - n_found, config.align2d_iterations,
-                config.epipolar_margin_px, config.zmssd_threshold,
-                config.track_search_fallback, done, tried, lookahead, orb.tables)
+                self.camera.params, frame.T_c_w, cands, (map_.kf_pyr, map_.kf_T_c_w),
+                frame.pyr.layout, frame.pyr.flat, corners, search,
+                (max_level, max_matches - n_found, fallback), (done, tried, lookahead),
+                orb.tables)
             found.append((k, uv, level))
             n_found += len(k)
             if not orb.fill():
                 break
             lookahead *= 2
-        k = np.concatenate([a[0] for a in found])
-        uv = np.concatenate([a[1] for a in found])
-        level = np.concatenate([a[2] for a in found])
-        return idx[k], uv, level, len(idx), int(tried.sum()), idx[tried]
+        return tuple(np.concatenate([a[i] for a in found]) for i in range(3))
+
+
+# the corner table of a frame whose corners no search needs
+_NO_CORNERS = (np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0),
+               np.zeros((1, 1), dtype=np.int64))

@@ -2,11 +2,22 @@
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 import numpy as np
 
-QUALITIES = ("initializing", "good", "insufficient", "bad", "lost")
+
+class Quality(StrEnum):
+    """Tracking quality of a frame (thesis 6.10), and the states around it. Members compare
+    equal to their strings, so code that still compares strings keeps working."""
+
+    INITIALIZING = "initializing"  # no map yet
+    GOOD = "good"  # matched / attempted above the ratio
+    INSUFFICIENT = "insufficient"  # below the ratio, enough matches
+    BAD = "bad"  # below the ratio and too few matches: no pose
+    LOST = "lost"  # bad frames in a row: relocalising or starting a new map
 
 
 @dataclass
@@ -17,22 +28,28 @@ class FrameResult:
     of the pose in the tracker's world frame, translation xyz then rotation xyz (a left
     perturbation exp(d) * T_w_c); `new_segment` is true on the first pose of a new map.
     `n_attempts` counts the map points matching tried (the quality ratio's denominator),
-    `n_hypotheses` the RANSAC hypotheses outlier rejection fitted (0 without it).
+    `n_hypotheses` the RANSAC hypotheses outlier rejection fitted (0 without it). Everything
+    after `quality` is given by keyword.
     """
 
     t: float
     T_w_c: np.ndarray | None
-    quality: str
-    covariance: np.ndarray | None = None
-    n_matches: int = 0
-    n_attempts: int = 0
-    n_inliers: int = 0
-    timings: dict[str, float] = field(default_factory=dict)
-    new_segment: bool = False
-    keyframe: bool = False
-    n_hypotheses: int = 0
+    quality: Quality
+    covariance: np.ndarray | None = field(default=None, kw_only=True)
+    n_matches: int = field(default=0, kw_only=True)
+    n_attempts: int = field(default=0, kw_only=True)
+    n_inliers: int = field(default=0, kw_only=True)
+    timings: dict[str, float] = field(default_factory=dict, kw_only=True)
+    new_segment: bool = field(default=False, kw_only=True)
+    keyframe: bool = field(default=False, kw_only=True)
+    n_hypotheses: int = field(default=0, kw_only=True)
 
     @property
     def has_pose(self) -> bool:
         """True when the frame has a world-from-camera pose."""
         return self.T_w_c is not None
+
+
+def ms_since(t0: float) -> float:
+    """Milliseconds since perf_counter() was t0 (a stage's entry in FrameResult.timings)."""
+    return (time.perf_counter() - t0) * 1e3

@@ -19,7 +19,7 @@ import numpy as np
 
 from calib.camera import CameraModel
 from sdvl.tables import dataclass_from_table, read_toml
-from vo.result import FrameResult
+from vo.result import FrameResult, Quality
 from vo.rigid_ransac import motion_covariance, ransac_rigid
 from vo.se3 import adjoint, orthonormalized
 
@@ -120,8 +120,9 @@ class RgbdOdometry:
         segment."""
         self.ref, self.failed = keyed, 0
         n = len(keyed.points)
-        return FrameResult(t, self.T_w_ref.copy(), "good", self.cov_ref.copy(), n, n, n,
-                           new_segment=True, keyframe=True)
+        return FrameResult(t, self.T_w_ref.copy(), Quality.GOOD, covariance=self.cov_ref.copy(),
+                           n_matches=n, n_attempts=n, n_inliers=n, new_segment=True,
+                           keyframe=True)
 
     def _step(self, t: float, keyed: _Keyed, timings: dict[str, float]) -> FrameResult:
         """Match to the reference, fit the motion, chain it."""
@@ -148,9 +149,10 @@ class RgbdOdometry:
         self.cov_ref = self.cov_ref + A @ inc @ A.T
         self.T_w_ref = orthonormalized(self.T_w_ref @ T_ref_cur)
         self.ref, self.failed = keyed, 0
-        quality = "good" if n_in >= cfg.good_inliers else "insufficient"
-        return FrameResult(t, self.T_w_ref.copy(), quality, self.cov_ref.copy(), len(i_cur),
-                           len(keyed.points), n_in, n_hypotheses=motion.hypotheses)
+        quality = Quality.GOOD if n_in >= cfg.good_inliers else Quality.INSUFFICIENT
+        return FrameResult(t, self.T_w_ref.copy(), quality, covariance=self.cov_ref.copy(),
+                           n_matches=len(i_cur), n_attempts=len(keyed.points), n_inliers=n_in,
+                           n_hypotheses=motion.hypotheses)
 
     def _fail(self, t: float, matches: int, attempts: int, inliers: int) -> FrameResult:
         """No pose for this frame; after `lost_after` in a row the next frame with depth
@@ -159,8 +161,8 @@ class RgbdOdometry:
         lost = self.failed >= self.config.lost_after
         if lost:
             self.ref = None
-        return FrameResult(t, None, "lost" if lost else "bad", None, matches, attempts,
-                           inliers)
+        return FrameResult(t, None, Quality.LOST if lost else Quality.BAD, n_matches=matches,
+                           n_attempts=attempts, n_inliers=inliers)
 
 
 def keypoint_depth(depth: np.ndarray, px: np.ndarray, edge_rel: float) -> np.ndarray:

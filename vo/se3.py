@@ -64,7 +64,8 @@ def inv_se3(T):
     out = np.eye(4)
     R = T[:3, :3]
     out[:3, :3] = R.T
-    out[:3, 3] = -(R.T @ T[:3, 3])
+    # contiguous operands for BLAS (what numba would copy them to anyway)
+    out[:3, 3] = -(np.ascontiguousarray(R.T) @ np.ascontiguousarray(T[:3, 3]))
     return out
 
 

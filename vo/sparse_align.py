@@ -6,9 +6,8 @@ The thesis minimises the plain sum of squared intensity residuals (6.10). Here e
 residual is Tukey-weighted (as the pose refinement of 6.7.3 is), with a scale fixed per level
 from the residuals where the level starts: a few patches that no longer look like their
 reference (a point placed at a wrong depth, a patch across an occluding edge) otherwise pull
-the least-squares optimum; seen on survey-long world seed 2 (320x240), where 7 such patches
-of 54 took the pose 13-18 degrees off along the tilt-versus-sideways-move ambiguity of a camera
-looking down, the frame became a keyframe and the ATE was 12 m."""
+the least-squares optimum, for a camera looking down along its tilt-versus-sideways-move
+ambiguity (RESULTS.md: tracker-align-robust)."""
 
 from __future__ import annotations
 
@@ -28,9 +27,11 @@ MIN_SCALE = 1.0
 
 
 @numba.njit(cache=True, nogil=True)
-def reference_patches(flat, off, w, h, level, px, xyz, fx, fy):
-    """4x4 reference patches at `level` around level-0 pixels px (N, 2) of points xyz (N, 3) in
-    the reference camera, their photometric Jacobians (N, 16, 6) and a validity mask."""
+def reference_patches(image, level, px, xyz, fx, fy):
+    """4x4 reference patches at `level` (`image` as for _patch_residuals) around level-0 pixels
+    px (N, 2) of points xyz (N, 3) in the reference camera, their photometric Jacobians
+    (N, 16, 6) and a validity mask."""
+    flat, off, w, h = image
     n = px.shape[0]
     s = 2.0 ** level
     patches = np.zeros((n, N4))
@@ -72,9 +73,11 @@ def _patch_centre(params, T_cur_ref, p_ref, level, w, h):
 
 
 @numba.njit(cache=True, nogil=True)
-def _patch_residuals(params, flat, off, w, h, level, patches, valid, xyz, T_cur_ref):
+def _patch_residuals(params, image, level, patches, valid, xyz, T_cur_ref):
     """Intensity residuals (current - reference, one row per patch visible at T_cur_ref) and
-    the index of each row's patch."""
+    the index of each row's patch; `image` = (flat pyramid, offset, width, height) of the
+    current frame's level."""
+    flat, off, w, h = image
     res = np.empty((patches.shape[0], N4))
     rows = np.empty(patches.shape[0], dtype=np.int64)
     n = 0
@@ -137,12 +140,12 @@ def _normal_equations(res, rows, jac, c):
 
 
 @numba.njit(cache=True, nogil=True)
-def align_level(params, flat, off, w, h, level, patches, jac, valid, xyz, T_cur_ref, iterations,
-                robust):
-    """Gauss-Newton at one level (Tukey-weighted with `robust`, the scale from the residuals
-    at T_cur_ref); returns the refined T_cur_ref and the pixel count used."""
+def align_level(params, image, level, patches, jac, valid, xyz, T_cur_ref, iterations, robust):
+    """Gauss-Newton at one level (`image` as for _patch_residuals; Tukey-weighted with
+    `robust`, the scale from the residuals at T_cur_ref); returns the refined T_cur_ref and the
+    pixel count used."""
     T = T_cur_ref.copy()
-    res, rows = _patch_residuals(params, flat, off, w, h, level, patches, valid, xyz, T)
+    res, rows = _patch_residuals(params, image, level, patches, valid, xyz, T)
     c = tukey_scale(res.ravel()) if robust else np.inf
     H, b, cost, count = _normal_equations(res, rows, jac, c)
     for _ in range(iterations):
@@ -150,7 +153,7 @@ def align_level(params, flat, off, w, h, level, patches, jac, valid, xyz, T_cur_
             break
         xi = np.linalg.solve(H + 1e-9 * np.eye(6), b)
         T_new = T @ exp_se3(-xi)
-        res, rows = _patch_residuals(params, flat, off, w, h, level, patches, valid, xyz, T_new)
+        res, rows = _patch_residuals(params, image, level, patches, valid, xyz, T_new)
         H_new, b_new, cost_new, count_new = _normal_equations(res, rows, jac, c)
         if cost_new > cost or count_new < 6 * N4:
             break
@@ -169,21 +172,18 @@ def align(params: np.ndarray, ref_pyr, cur_pyr, px_ref: np.ndarray, xyz_ref: np.
     T = np.ascontiguousarray(T_cur_ref, dtype=np.float64)
     fx, fy = float(params[1]), float(params[2])
     for level in range(max_level, min_level - 1, -1):
-        off, w, h = ref_pyr.offsets[level], ref_pyr.widths[level], ref_pyr.heights[level]
-        patches, jac, valid = reference_patches(ref_pyr.flat, off, w, h, level, px_ref, xyz_ref,
-                                                fx, fy)
-        T, _ = align_level(params, cur_pyr.flat, cur_pyr.offsets[level], cur_pyr.widths[level],
-                           cur_pyr.heights[level], level, patches, jac, valid, xyz_ref, T,
-                           iterations, robust)
+        patches, jac, valid = reference_patches(level_image(ref_pyr, level), level, px_ref,
+                                                xyz_ref, fx, fy)
+        T, _ = align_level(params, level_image(cur_pyr, level), level, patches, jac, valid,
+                           xyz_ref, T, iterations, robust)
     return T
 
 
 @numba.njit(cache=True, nogil=True)
-def _residual_ratio(params, flat, off, w, h, level, patches, valid, xyz, T_cur_ref):
+def _residual_ratio(params, image, level, patches, valid, xyz, T_cur_ref):
     """Zero-mean residual energy of the patches over their own zero-mean energy (per patch
     mean removed, so a brightness change costs nothing); inf when no patch is visible."""
-    res, rows = _patch_residuals(params, flat, off, w, h, level, patches, valid, xyz,
-                                 T_cur_ref)
+    res, rows = _patch_residuals(params, image, level, patches, valid, xyz, T_cur_ref)
     err = 0.0
     energy = 0.0
     for j in range(rows.shape[0]):
@@ -200,9 +200,12 @@ def residual_ratio(params: np.ndarray, ref_pyr, cur_pyr, px_ref: np.ndarray,
                    xyz_ref: np.ndarray, T_cur_ref: np.ndarray, level: int) -> float:
     """How badly the reference patches fit the current image at T_cur_ref (at `level`): 0 for
     a perfect fit, about 1 against a blank image, about 2 against unrelated texture."""
-    off, w, h = ref_pyr.offsets[level], ref_pyr.widths[level], ref_pyr.heights[level]
-    patches, _, valid = reference_patches(ref_pyr.flat, off, w, h, level, px_ref, xyz_ref,
+    patches, _, valid = reference_patches(level_image(ref_pyr, level), level, px_ref, xyz_ref,
                                           float(params[1]), float(params[2]))
-    return _residual_ratio(params, cur_pyr.flat, cur_pyr.offsets[level], cur_pyr.widths[level],
-                           cur_pyr.heights[level], level, patches, valid, xyz_ref,
+    return _residual_ratio(params, level_image(cur_pyr, level), level, patches, valid, xyz_ref,
                            np.ascontiguousarray(T_cur_ref, dtype=np.float64))
+
+
+def level_image(pyr, level: int) -> tuple:
+    """(flat pyramid, offset, width, height) of one level of a vo.frame.Pyramid."""
+    return pyr.flat, pyr.offsets[level], pyr.widths[level], pyr.heights[level]

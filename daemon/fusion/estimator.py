@@ -39,6 +39,7 @@ from daemon.fusion.alignment import AlignmentGate
 from daemon.fusion.attitude import AttitudeTrack
 from daemon.fusion.clock import ClockMap
 from daemon.fusion.config import FusionConfig
+from daemon.fusion.imu_gate import ImuGate
 from daemon.fusion.map_fusion import FrameInput, MapFusion, Readings, frame_input
 from daemon.fusion.output import Continuity, attitude_noise, build_estimate, horizontal_std
 from daemon.fusion.rest import RestDetector
@@ -53,9 +54,11 @@ from daemon.fusion.sensors import (
     flight_states,
     parse,
 )
+from daemon.fusion.source_choice import SourceChoice
 from daemon.fusion.state import THETA, NavFilter
 from daemon.fusion.timeline import Event, Timeline
 from daemon.mounting import body_from_camera
+from vo.result import Quality
 
 log = logging.getLogger("sdvl.fusion")
 INBOX_LIMIT = 20_000
@@ -80,6 +83,8 @@ class FusionEstimator:
         self.clock = ClockMap(cfg.clock_offset_window_s)
         self.timeline = Timeline(cfg.history_s)
         self.sources: dict[str, str] = {}  # "imu"/"baro" -> the message type fused
+        self._choices: dict[str, SourceChoice] = {}
+        self.imu_gate = ImuGate(report)
         self.dropped_stamps = 0
         self._inbox: deque[tuple[float, object]] = deque(maxlen=INBOX_LIMIT)
         self._lock = threading.Lock()  # the inbox, between the link's thread and ours
@@ -137,8 +142,8 @@ class FusionEstimator:
             if att is None or not self._imu_fresh(t, carried):
                 return None
             estimate = build_estimate(
-                carried, self.cfg, R_l_b=att.R_n_b, rot_cov=attitude_noise(self.cfg, "good"),
-                rates=att.rates, t_capture=t, t_source=math.nan, state="good",
+                carried, self.cfg, R_l_b=att.R_n_b, rot_cov=attitude_noise(self.cfg, Quality.GOOD),
+                rates=att.rates, t_capture=t, t_source=math.nan, state=Quality.GOOD,
                 reset_counter=self.reset_counter)
             if estimate is None or horizontal_std(carried) > self.cfg.publish_max_std_m:
                 return None
@@ -246,8 +251,9 @@ class FusionEstimator:
                 self.rest.on_rates(t, sample.rates)
                 self.timeline.add(t, "attitude", None)  # late ones replay what used it
             elif isinstance(sample, Imu) and self.cfg.use_imu:
-                self.rest.on_imu(t, sample.accel)
-                self._add_stream("imu", sample, IMU_PRIORITY)
+                if self.imu_gate.admit(sample.source, remote, t, sample.accel):
+                    self.rest.on_imu(t, sample.accel)
+                    self._add_stream("imu", sample, IMU_PRIORITY)
             elif isinstance(sample, LocalPosition):
                 self._autopilot_z = (t, float(sample.position[2]))
             elif isinstance(sample, Range) and self.cfg.use_rangefinder:
@@ -256,12 +262,10 @@ class FusionEstimator:
                 self._add_stream("baro", sample, BARO_PRIORITY)
 
     def _add_stream(self, kind: str, sample: Imu | Baro, priority: dict[str, int]) -> None:
-        """Fuse one stream of a kind: the best source seen so far (see sensors.py)."""
-        current = self.sources.get(kind)
-        if current is None or priority[sample.source] < priority[current]:
+        """Fuse one stream of a kind: the preferred one that streams steadily (source_choice)."""
+        choice = self._choices.setdefault(kind, SourceChoice(kind, priority))
+        if choice.offer(sample.source, sample.t):
             self.sources[kind] = sample.source
-            log.info("fusion: %s from %s", kind, sample.source)
-        if sample.source == self.sources[kind]:
             self.timeline.add(sample.t, kind, sample)
 
     # --- the filter ---------------------------------------------------------------------------

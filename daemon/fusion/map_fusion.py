@@ -18,9 +18,10 @@ from daemon.fusion.config import FusionConfig
 from daemon.fusion.output import attitude_noise, inflation
 from daemon.fusion.state import ANCHOR, LOG_SCALE, POS, NavFilter
 from vo.pose_optimizer import MAD_TO_SIGMA
+from vo.result import Quality
 
 log = logging.getLogger("sdvl.fusion")
-TRACKED = ("good", "insufficient", "bad")
+TRACKED = (Quality.GOOD, Quality.INSUFFICIENT, Quality.BAD)
 RANGE_FRESH_S = 0.5  # a rangefinder reading this close to a frame measures its height
 MIN_SCENE_POINTS = 20  # matched map points for a median height
 
@@ -124,8 +125,9 @@ class MapFusion:
         scale from elsewhere (std above coarse_scale_std, or no IMU) and has not converged, take
         it from their fit over the climb when that is surer (climb_scale.py)."""
         f, cfg = self.filter, self.cfg
-        if self.readings.baro is None or abs(t - self.readings.baro[0]) > RANGE_FRESH_S:
-            return
+        if (self.readings.baro is None or abs(t - self.readings.baro[0]) > RANGE_FRESH_S
+                or f.converged):
+            return  # once converged the fit is not used: pairing on would grow without bound
         f.climb.add(float((f.R_nom @ (frame.p_w - f.p_w0))[2]), *self.readings.baro)
         std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
         if att is None or f.converged or (std <= cfg.coarse_scale_std and self.imu_fresh(t)):

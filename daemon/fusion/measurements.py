@@ -39,26 +39,22 @@ def gated_update(f: NavFilter, z: np.ndarray, h: np.ndarray, H: np.ndarray, R: n
         return False
     if not np.isfinite(d2) or d2 > gate:
         return False
-    x0, P0 = f.x.copy(), f.P.copy()
-    if frozen is None:
-        f.ekf.update(z, lambda _x: H, lambda _x: h, R=R)
-    else:
-        K = f.P @ H.T @ np.linalg.inv(S)
+    K = f.P @ H.T @ np.linalg.inv(S)
+    if frozen is not None:
         K[frozen] = 0.0
-        I_KH = np.eye(DIM) - K @ H
-        f.ekf.x = f.x + K @ y
-        f.ekf.P = I_KH @ f.P @ I_KH.T + K @ R @ K.T
-    f.ekf.P = 0.5 * (f.ekf.P + f.ekf.P.T)
-    if not (np.all(np.isfinite(f.ekf.x)) and np.all(np.isfinite(f.ekf.P))):
-        f.ekf.x, f.ekf.P = x0, P0
+    I_KH = np.eye(DIM) - K @ H
+    x = f.x + K @ y
+    P = I_KH @ f.P @ I_KH.T + K @ R @ K.T  # Joseph form: right for any gain
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
         return False
+    f.x, f.P = x, 0.5 * (P + P.T)
     return True
 
 
 def fold_alignment(f: NavFilter) -> None:
     """Move the estimated small rotation theta into the nominal alignment R_nom."""
     f.R_nom = rotvec_to_matrix(f.x[THETA]) @ f.R_nom
-    f.ekf.x[THETA] = 0.0
+    f.x[THETA] = 0.0
 
 
 def _position_rows(f: NavFilter, p_w: np.ndarray, R_n_b: np.ndarray

@@ -8,8 +8,9 @@ import numpy as np
 from daemon.estimate import VisionEstimate
 from daemon.fusion.config import FusionConfig
 from daemon.fusion.state import POS, VEL, NavFilter
+from vo.result import Quality
 
-QUALITY_INFLATION_KEYS = {"insufficient": "inflate_insufficient", "bad": "inflate_bad"}
+QUALITY_INFLATION_KEYS = {Quality.INSUFFICIENT: "inflate_insufficient", Quality.BAD: "inflate_bad"}
 JUMP_FLOOR_M = 0.02  # moves below this are never a discontinuity (a filter at rest is sure to mm)
 
 

@@ -21,6 +21,24 @@ GRAVITY = 9.80665
 MIN_SAMPLES = 5  # IMU samples in the window before it can be called quiet
 ONSET_S = 0.1  # a take-off shows in the IMU's mean over this long before the land detector
 ONSET_ACCEL = 0.1  # m/s^2: a thrust change that large is no ground vibration
+CONFIRM = 2  # reports in a row before a vehicle that may move is taken to be on the ground
+
+
+class _Reported:
+    """One flight-state flag as reported: a report that the vehicle may move counts at once,
+    one that it stands still only when CONFIRM reports in a row say so (or it is the first
+    word), so a corrupt message cannot stop a flying vehicle in the filter."""
+
+    def __init__(self, still_when: bool):
+        self.still_when = still_when
+        self.value: tuple[float, bool] | None = None  # (time, flag)
+        self._agreeing = 0
+
+    def report(self, t: float, flag: bool) -> None:
+        self._agreeing = self._agreeing + 1 if flag == self.still_when else 0
+        if (flag != self.still_when or self.value is None or self.value[1] == flag
+                or self._agreeing >= CONFIRM):
+            self.value = (t, flag)
 
 
 class RestDetector:
@@ -28,8 +46,8 @@ class RestDetector:
 
     def __init__(self, cfg: FusionConfig):
         self.cfg = cfg
-        self.landed: tuple[float, bool] | None = None  # (time, on the ground)
-        self.armed: tuple[float, bool] | None = None
+        self._landed = _Reported(still_when=True)  # on the ground
+        self._armed = _Reported(still_when=False)
         self.accel: deque[tuple[float, np.ndarray]] = deque()
         self.rates: deque[tuple[float, float]] = deque()  # (time, |rate|)
 
@@ -37,11 +55,11 @@ class RestDetector:
         """The autopilot's land detector (None: it cannot tell now; the last word stands until
         it times out)."""
         if on_ground is not None:
-            self.landed = (t, on_ground)
+            self._landed.report(t, on_ground)
 
     def on_armed(self, t: float, armed: bool) -> None:
         """HEARTBEAT's armed flag."""
-        self.armed = (t, armed)
+        self._armed.report(t, armed)
 
     def on_imu(self, t: float, accel: np.ndarray) -> None:
         """A specific-force sample (body FRD, m/s^2)."""
@@ -65,10 +83,10 @@ class RestDetector:
     def state(self, t: float) -> bool | None:
         """True when the vehicle stands still at time t, False when it may move, None when
         that cannot be told yet (no flight state, or too few IMU samples while disarmed)."""
-        landed = self._fresh(self.landed, t)
+        landed = self._fresh(self._landed.value, t)
         if landed is not None:
             return landed and not self.accelerating(t)
-        armed = self._fresh(self.armed, t)
+        armed = self._fresh(self._armed.value, t)
         if armed is None:
             return None
         if armed:

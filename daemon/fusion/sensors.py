@@ -32,7 +32,7 @@ MG = GRAVITY / 1000.0
 DOWNWARD = mavlink2.MAV_SENSOR_ROTATION_PITCH_270
 HIGHRES_ACCEL_BITS = 0b111
 HIGHRES_PRESSURE_BIT = 1 << 9
-# one stream of each kind is fused, the first of these that the autopilot sends
+# one stream of each kind is fused: the first of these that streams steadily (source_choice.py)
 IMU_PRIORITY = {"HIGHRES_IMU": 0, "SCALED_IMU": 1, "RAW_IMU": 2}
 BARO_PRIORITY = {"SCALED_PRESSURE": 0, "HIGHRES_IMU": 1, "ALTITUDE": 2}
 MAX_ALTITUDE_M = 12000.0

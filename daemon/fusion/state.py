@@ -1,4 +1,5 @@
-"""The navigation filter: an error-state-style EKF on filterpy's ExtendedKalmanFilter.
+"""The navigation filter: an error-state-style EKF, written out (its prediction holds the IMU
+sample between steps and its updates are gated Schmidt updates that filterpy's EKF does not do).
 
 State (NED local frame N, metres): vehicle position p and velocity v, accelerometer bias b_a
 (body), the camera position a at the anchor of the current map segment, ln(scale), a small
@@ -24,7 +25,6 @@ autopilot's attitude observes it.
 from __future__ import annotations
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter
 from scipy.spatial.transform import Rotation
 
 from daemon.fusion.accel_scale import AccelScale
@@ -46,25 +46,13 @@ def skew(v: np.ndarray) -> np.ndarray:
 
 
 def rotvec_to_matrix(v: np.ndarray) -> np.ndarray:
-    """exp([v]x) (Rodrigues)."""
-    angle = float(np.sqrt(v @ v))
-    K = skew(v)
-    if angle < 1e-8:
-        return np.eye(3) + K
-    return (np.eye(3) + np.sin(angle) / angle * K
-            + (1.0 - np.cos(angle)) / angle**2 * (K @ K))
+    """exp([v]x): the rotation matrix of a rotation vector."""
+    return Rotation.from_rotvec(v).as_matrix()
 
 
 def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
     """log(R) as a rotation vector."""
-    cos = float(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))
-    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / 2.0
-    angle = float(np.arccos(cos))
-    if angle < 1e-6:
-        return axis
-    if angle > np.pi - 1e-3:  # near a half turn the antisymmetric part vanishes
-        return Rotation.from_matrix(R).as_rotvec()
-    return axis * (angle / np.sin(angle))
+    return Rotation.from_matrix(R).as_rotvec()
 
 
 class NavFilter:
@@ -72,9 +60,8 @@ class NavFilter:
 
     def __init__(self, cfg: FusionConfig):
         self.cfg = cfg
-        self.ekf = ExtendedKalmanFilter(dim_x=DIM, dim_z=3)
-        self.ekf.x = np.zeros(DIM)
-        self.ekf.P = np.eye(DIM)
+        self.x = np.zeros(DIM)  # the state vector (see the module docstring for its layout)
+        self.P = np.eye(DIM)  # its covariance
         self.t: float | None = None
         self.R_nom = np.eye(3)  # R_N_w
         self.p_w0 = np.zeros(3)
@@ -94,16 +81,6 @@ class NavFilter:
         self.t_accel = float("-inf")
         self.rejections = {"range": 0, "baro": 0, "vo": 0}
         self.lever = np.array([cfg.camera_x_m, cfg.camera_y_m, cfg.camera_z_m])
-
-    @property
-    def x(self) -> np.ndarray:
-        """The state vector (see the module docstring for its layout)."""
-        return self.ekf.x
-
-    @property
-    def P(self) -> np.ndarray:
-        """The state covariance."""
-        return self.ekf.P
 
     @property
     def scale(self) -> float:
@@ -126,7 +103,7 @@ class NavFilter:
         (self.t, x, P, R_nom, p_w0, self.has_ground, self.has_baro, rejections, self.segment,
          self.accel, self.t_accel, self.realigns, self.converged, self.scale_source,
          self.scene_ne, climb, motion) = snap
-        self.ekf.x, self.ekf.P = x.copy(), P.copy()
+        self.x, self.P = x.copy(), P.copy()
         self.climb, self.motion = climb.copy(), motion.copy()
         self.R_nom, self.p_w0, self.rejections = R_nom.copy(), p_w0.copy(), dict(rejections)
 
@@ -137,9 +114,9 @@ class NavFilter:
         autopilot's own height `height_z` (NED z), still within `velocity_std`."""
         cfg = self.cfg
         self.t = t
-        self.ekf.x = np.zeros(DIM)
-        self.ekf.x[2] = height_z
-        self.ekf.x[LOG_SCALE] = np.log(cfg.initial_scale)
+        self.x = np.zeros(DIM)
+        self.x[2] = height_z
+        self.x[LOG_SCALE] = np.log(cfg.initial_scale)
         var = np.zeros(DIM)
         var[POS] = 1e-6
         var[VEL] = velocity_std**2
@@ -149,7 +126,7 @@ class NavFilter:
         var[THETA] = 1.0
         var[GROUND] = var[BARO] = 1.0
         var[VO_TILT] = np.radians(cfg.vo_tilt_error_std_deg) ** 2
-        self.ekf.P = np.diag(var)
+        self.P = np.diag(var)
 
     def start_segment(self, p_w: np.ndarray, R_w_b: np.ndarray, R_n_b: np.ndarray,
                       log_scale: float, scale_std: float | None = None) -> None:
@@ -158,7 +135,7 @@ class NavFilter:
         self.converged = False
         self.climb = ClimbScale()
         self.motion = self._accel_scale()
-        x, P = self.ekf.x, self.ekf.P
+        x, P = self.x, self.P
         x[ANCHOR] = x[POS] + R_n_b @ self.lever
         P[ANCHOR, :] = P[POS, :]
         P[:, ANCHOR] = P[:, POS]
@@ -187,7 +164,7 @@ class NavFilter:
         velocity is stretched by the same ratio, and both carry the new scale's error. Dead
         reckoning at the old scale is dropped, and so is the barometer's offset,
         which was fitted to it (the next reading re-references it)."""
-        x, P = self.ekf.x, self.ekf.P
+        x, P = self.x, self.P
         ratio = float(np.exp(log_scale - x[LOG_SCALE]))
         m = self.R_nom @ (np.asarray(p_w, float) - self.p_w0)
         s = float(np.exp(log_scale))
@@ -201,7 +178,7 @@ class NavFilter:
         d[POS], d[VEL], d[LOG_SCALE] = s * m, ratio * x[VEL], 1.0
         P += np.outer(d, d) * scale_std**2
         P[POS, POS] += np.eye(3) * self.cfg.vo_position_std_m**2
-        self.ekf.P = 0.5 * (P + P.T)
+        self.P = 0.5 * (P + P.T)
         x[POS] = x[ANCHOR] + s * m - R_n_b @ self.lever
         x[VEL] *= ratio
         x[LOG_SCALE] = log_scale
@@ -212,7 +189,7 @@ class NavFilter:
         """Back to the wide prior's uncertainty: from there the EKF's linearised fixes settle
         far off and become sure of it before the estimate gets there; the fits of
         climb_scale.py and accel_scale.py give it a start without linearisation."""
-        P = self.ekf.P
+        P = self.P
         P[LOG_SCALE, :] = 0.0
         P[:, LOG_SCALE] = 0.0
         P[LOG_SCALE, LOG_SCALE] = self.cfg.scale_prior_std**2
@@ -224,7 +201,7 @@ class NavFilter:
         p_w0, not where the camera truly was then: the tracker's noise at the old anchor and
         the new one cancel along the chain, so moving adds no noise (adding the frame's noise
         at every move would make the anchor a random walk of it)."""
-        x, P = self.ekf.x, self.ekf.P
+        x, P = self.x, self.P
         v = self.scale * (self.R_nom @ (np.asarray(p_w, float) - self.p_w0))
         J = np.zeros((3, DIM))
         J[:, ANCHOR] = np.eye(3)
@@ -242,7 +219,7 @@ class NavFilter:
         `value` (vertical distance to the ground, or altitude) fits the current height:
         both are value + p_z, with p_z's uncertainty plus the measurement's."""
         index = GROUND if which == "range" else BARO
-        x, P = self.ekf.x, self.ekf.P
+        x, P = self.x, self.P
         x[index] = value + x[2]
         P[index, :] = P[2, :]
         P[:, index] = P[:, 2]
@@ -259,7 +236,7 @@ class NavFilter:
         if dt <= 0:
             return
         cfg = self.cfg
-        x = self.ekf.x
+        x = self.x
         F = np.eye(DIM)
         F[POS, VEL] = np.eye(3) * dt
         F[VO_TILT, VO_TILT] = np.eye(2) * self._tilt_decay(dt)
@@ -280,9 +257,8 @@ class NavFilter:
         else:
             self.motion.interrupt()
         x[VO_TILT] *= self._tilt_decay(dt)
-        self.ekf.F = F
-        self.ekf.Q = self._process_noise(dt, sigma, speed, horizontal_speed, accel is not None)
-        self.ekf.P = F @ self.ekf.P @ F.T + self.ekf.Q
+        Q = self._process_noise(dt, sigma, speed, horizontal_speed, accel is not None)
+        self.P = F @ self.P @ F.T + Q
         self.t = t
 
     def _process_noise(self, dt: float, sigma: float, speed: float, horizontal_speed: float,

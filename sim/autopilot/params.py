@@ -148,10 +148,11 @@ def configured_values(flavour: str, release: Release = Release.MASTER_2025,
     GPS, the VISO noise floors at their minimum (0.1 m, 0.05 rad) so the companion's covariance
     is used, VISO_DELAY_MS 40 (the 31-38 ms measured in (e) 7), MAVLink2 at 921600 on the
     companion's port and its stream rates (RAW_SENS 50 Hz, EXTRA1 50 Hz, EXTRA3 10 Hz,
-    POSITION 10 Hz). PX4: EV horizontal+vertical position, velocity and yaw with baro height,
-    MAVLink in Onboard mode on TELEM2 at 921600."""
+    POSITION 10 Hz). PX4: EV horizontal+vertical position and velocity, no EV yaw (check-autopilot
+    refuses it: daemon/px4_params.py), with baro height, MAVLink in Onboard mode on TELEM2 at
+    921600."""
     if flavour == "px4":
-        return {"EKF2_EV_CTRL": 15, "EKF2_HGT_REF": 0, "EKF2_GPS_CTRL": 0,
+        return {"EKF2_EV_CTRL": 7, "EKF2_HGT_REF": 0, "EKF2_GPS_CTRL": 0,
                 "MAV_1_CONFIG": PX4_PORTS["TEL2"], "MAV_1_MODE": 2, "SER_TEL2_BAUD": 921600}
     values = {"VISO_TYPE": viso_type, "EK3_SRC1_POSXY": 6, "EK3_SRC1_VELXY": 6,
               "EK3_SRC1_POSZ": 1, "EK3_SRC1_VELZ": 6, "EK3_SRC1_YAW": 1, "VISO_POS_M_NSE": 0.1,

@@ -13,7 +13,7 @@ import resource
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,10 +21,10 @@ import numpy as np
 from daemon.camera import SequenceSource
 from daemon.config import Config, replace
 from daemon.run_command import tracker_factory
-from daemon.service import Service
+from daemon.service import Service, prefer_handoffs
 from sdvl.errors import InputError
 from sim.autopilot import SimOptions, configured_options
-from sim.replay.autopilot_process import AutopilotOutcome, AutopilotProcess, VisionMessage
+from sim.replay.autopilot_process import AutopilotProcess
 from sim.replay.flight import (
     absent_sensors,
     body_imu,
@@ -34,39 +34,16 @@ from sim.replay.flight import (
     vehicle_trajectory,
 )
 from sim.replay.fusion_scores import compass_bias_deg
+from sim.replay.lockstep import lockstep_config, run_lockstep
 from sim.replay.preflight import WithPreflight, held_before
 from sim.replay.prerender import prerendered, renders_on_the_fly
 from sim.replay.progress import Progress
 from sim.replay.recording import Recorder
+from sim.replay.replay_run import FirstFrames, ReplayRun, aligned_time
 from sim.trajectory import Trajectory
 
-WARMUP_FRAMES = 30  # enough for the map to start, so mapping kernels are loaded too
 SETTLE_S = 0.3  # after the last frame, for the last messages to arrive
 RATE_MARGIN = 1.05  # fast replay: frames this much slower than the message rate limit
-
-
-@dataclass
-class FirstFrames:
-    """A sequence cut to its first `limit` frames (None: all), for SequenceSource."""
-
-    sequence: object
-    limit: int | None
-
-    @property
-    def name(self) -> str:
-        return self.sequence.name
-
-    @property
-    def camera(self) -> object:
-        return self.sequence.camera
-
-    def __len__(self) -> int:
-        n = len(self.sequence)
-        return n if self.limit is None else min(n, self.limit)
-
-    def frames(self):
-        """(t, image) of the first frames."""
-        return self.sequence.frames(self.limit)
 
 
 class ReplaySource(SequenceSource):
@@ -101,36 +78,6 @@ class ReplaySource(SequenceSource):
         return t_source, t_capture, image
 
 
-@dataclass
-class ReplayRun:
-    """Everything the report scores."""
-
-    name: str
-    realtime: bool
-    fusion: bool
-    offered: int
-    rows: list[dict]  # Recorder rows, one per processed frame
-    received: list[VisionMessage]
-    flight: Trajectory | None  # vehicle ground truth (body FRD in NED)
-    wall_s: float
-    cpu_s: float
-    warmup_s: float
-    peak_rss_mb: float
-    exit_code: int
-    stats: dict = field(default_factory=dict)
-    without: tuple[str, ...] = ()  # sensors the autopilot did not stream
-    compass_bias_deg: float | None = None  # of the simulated autopilot's attitude
-    autopilot: AutopilotOutcome | None = None  # its record (not in lockstep)
-    flight_start: tuple[float, float] | None = None  # (t_source, t_capture): its first frame
-
-
-def aligned_time(estimator: object, rows: list[dict]) -> float | None:
-    """Sequence time of the frame at which the fusion's map first aligned (None: never, or no
-    fusion)."""
-    capture = getattr(estimator, "first_aligned_s", None)
-    return next((r["t_source"] for r in rows if r["t_capture"] == capture), None)
-
-
 def during_replay(trajectory: Trajectory, run: ReplayRun) -> Trajectory:
     """The part of a trajectory while frames were played (e.g. with --max-frames)."""
     if not run.rows:
@@ -152,20 +99,19 @@ def choose_estimator(config: Config, sequence: object, estimator: str) -> Config
 
 
 def warm_up(make_tracker: Callable, sequence: object) -> float:
-    """Run a throwaway tracker over the first frames so compiled kernels are loaded before the
-    clock starts (a drone's service is up before it flies); returns the seconds it took."""
+    """Run a throwaway tracker over the tracker's warm-up frames (vo.warm_up: a synthetic pan,
+    nothing rendered or read) so compiled kernels are loaded before the clock starts (a
+    drone's service is up before it flies); returns the seconds it took."""
     from daemon.frames import Frame
+    from vo.warm_up import warm_up as warm_tracker
 
     start = time.perf_counter()
-    tracker = None
+    width, height = sequence.camera.width, sequence.camera.height
+    tracker = make_tracker(Frame(0, 0.0, time.monotonic(), np.zeros((height, width), np.uint8)))
     try:
-        for i, (t, image) in enumerate(sequence.frames(WARMUP_FRAMES)):
-            frame = Frame(i, t, time.monotonic(), image)
-            tracker = tracker or make_tracker(frame)
-            tracker.process(image, t)
+        warm_tracker(tracker.process, width, height)
     finally:
-        if tracker is not None:
-            tracker.close()
+        tracker.close()
     return time.perf_counter() - start
 
 
@@ -208,8 +154,6 @@ def run_replay(sequence: object, config: Config, realtime: bool,
     against the simulated `autopilot`, whose vehicle has no sensor of the kinds in `without`
     (flight.SENSOR_STREAMS); `make_tracker(frame)` replaces the SDVL tracker (tests). Fusion
     without `realtime` runs in lockstep on a virtual clock (sim/replay/lockstep.py)."""
-    from sim.replay.lockstep import lockstep_config, run_lockstep
-
     plan = ReplayPlan(realtime, max_frames, without, autopilot)
     config = replace(drone_config(config, sequence),
                      camera={"source": "testpattern", "calibration": ""})
@@ -266,6 +210,7 @@ def _replay(sequence: object, config: Config, plan: ReplayPlan, show: Progress,
                               autopilot.frame_released)
         recorder = Recorder()
         service = Service(config, source, make_tracker, on_tracked=recorder)
+        prefer_handoffs()
         cpu0, wall0 = time.process_time(), time.perf_counter()
         code = asyncio.run(_serve(service, source, recorder, show))
         wall_s, cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0

@@ -27,8 +27,8 @@ from daemon.messages import odometry
 from sim.autopilot.vehicle import Vehicle, sensor_message
 from sim.replay.autopilot_process import VisionMessage, with_recordings
 from sim.replay.flight import body_imu, resampled, sensor_streams
-from sim.replay.harness import FirstFrames, ReplayRun, aligned_time
 from sim.replay.progress import Progress
+from sim.replay.replay_run import FirstFrames, ReplayRun, aligned_time
 from sim.trajectory import Trajectory
 
 OUR_CLOCK = 1000.0  # our monotonic clock at sequence time 0

@@ -1,51 +1,48 @@
-"""The replay's progress line on stderr."""
+"""The replay's progress bar on stderr (tqdm)."""
 
 from __future__ import annotations
 
 import sys
-import time
+from collections.abc import Iterable
+
+from tqdm import tqdm
+
+NON_TTY_INTERVAL_S = 10.0  # a log file gets a line this often, not a redrawn bar
+
+
+def progress_bar(description: str, total: int | None, iterable: Iterable | None = None,
+                 enabled: bool = True, unit: str = "frame") -> tqdm:
+    """A tqdm bar on stderr for the project's commands (over `iterable` when given); a line
+    every NON_TTY_INTERVAL_S when stderr is not a terminal."""
+    return tqdm(iterable, total=total, desc=description, unit=unit, file=sys.stderr,
+                disable=not enabled,
+                mininterval=0.25 if sys.stderr.isatty() else NON_TTY_INTERVAL_S,
+                dynamic_ncols=True)
 
 
 class Progress:
-    """A one-line progress bar on stderr (a line per 10 % when stderr is not a terminal)."""
-
-    interval_s = 0.25
+    """The replay's bar: frames offered, with processed and tracked beside it."""
 
     def __init__(self, total: int, enabled: bool):
-        self.total, self.enabled = max(total, 1), enabled
-        self.tty = sys.stderr.isatty()
-        self._last_decile = -1
-        self._start: float | None = None
+        self.total = max(total, 1)
+        self.bar = progress_bar("replay", self.total, enabled=enabled)
 
     def __len__(self) -> int:
         return self.total
 
     def rendered(self, done: int) -> None:
         """Frames rendered before the replay (a line per 10 %)."""
-        if self.enabled and (done == self.total or done % max(self.total // 10, 1) == 0):
-            print(f"  rendered {done}/{self.total} frames", file=sys.stderr, flush=True)
+        if done == self.total or done % max(self.total // 10, 1) == 0:
+            self.note(f"  rendered {done}/{self.total} frames")
 
     def note(self, text: str) -> None:
-        """One line of its own."""
-        if self.enabled:
-            print(text, file=sys.stderr, flush=True)
+        """One line of its own, above the bar."""
+        if not self.bar.disable:
+            self.bar.write(text, file=sys.stderr)
 
     def update(self, offered: int, processed: int, tracked: int) -> None:
-        if not self.enabled:
-            return
-        self._start = self._start or time.monotonic()
-        fraction = min(offered / self.total, 1.0)
-        if not self.tty:
-            decile = int(fraction * 10)
-            if decile == self._last_decile:
-                return
-            self._last_decile = decile
-        bar = "#" * int(fraction * 30)
-        line = (f"replay [{bar:<30}] {offered}/{self.total} frames, processed {processed}, "
-                f"tracked {tracked}, {time.monotonic() - self._start:.0f} s")
-        print(("\r" + line) if self.tty else line, end="" if self.tty else "\n",
-              file=sys.stderr, flush=True)
+        self.bar.set_postfix(processed=processed, tracked=tracked, refresh=False)
+        self.bar.update(offered - self.bar.n)
 
     def close(self) -> None:
-        if self.enabled and self.tty:
-            print(file=sys.stderr, flush=True)
+        self.bar.close()

@@ -14,9 +14,10 @@ from sim.metrics import Aligned, align_trajectories, evaluate, interpolate
 from sim.replay.autopilot_process import VisionMessage
 from sim.replay.autopilot_scores import AUTOPILOT_KEYS, autopilot_scores
 from sim.replay.fusion_scores import FUSION_KEYS, fusion_scores, velocity_at
-from sim.replay.harness import ReplayRun
 from sim.replay.recording import stats_ms
+from sim.replay.replay_run import ReplayRun
 from sim.trajectory import Trajectory, write_tum
+from vo.result import Quality
 
 STAMP_TOLERANCE_S = 1e-4  # time_usec is t_capture in whole microseconds
 
@@ -202,7 +203,7 @@ def timing(run: ReplayRun, received: Received) -> dict:
     span = received.t_arrival[-1] - received.t_arrival[0] if len(intervals) else 0.0
     send = stats_ms([r["send"] for r in run.rows if r["sent"]] if linked else [])
     arrival = stats_ms(list(received.t_arrival - received.t_capture) if linked else [])
-    track = stats_ms([r["track"] for r in run.rows if r["quality"] != "initializing"])
+    track = stats_ms([r["track"] for r in run.rows if r["quality"] != Quality.INITIALIZING])
     processed = len(run.rows)
     return {
         "message_rate_hz": len(intervals) / span if span > 0 else None,

@@ -1,0 +1,1 @@
+"""Fault injection, fuzzing and the long-run memory check of the service (`sdvl faults`)."""

@@ -1,0 +1,63 @@
+"""What a replay hands between its parts: the frames it plays (FirstFrames) and everything
+its report scores (ReplayRun), for the real-time harness and the lockstep loop alike."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from sim.replay.autopilot_process import AutopilotOutcome, VisionMessage
+from sim.trajectory import Trajectory
+
+
+@dataclass
+class FirstFrames:
+    """A sequence cut to its first `limit` frames (None: all), for SequenceSource."""
+
+    sequence: object
+    limit: int | None
+
+    @property
+    def name(self) -> str:
+        return self.sequence.name
+
+    @property
+    def camera(self) -> object:
+        return self.sequence.camera
+
+    def __len__(self) -> int:
+        n = len(self.sequence)
+        return n if self.limit is None else min(n, self.limit)
+
+    def frames(self):
+        """(t, image) of the first frames."""
+        return self.sequence.frames(self.limit)
+
+
+@dataclass
+class ReplayRun:
+    """Everything the report scores."""
+
+    name: str
+    realtime: bool
+    fusion: bool
+    offered: int
+    rows: list[dict]  # Recorder rows, one per processed frame
+    received: list[VisionMessage]
+    flight: Trajectory | None  # vehicle ground truth (body FRD in NED)
+    wall_s: float
+    cpu_s: float
+    warmup_s: float
+    peak_rss_mb: float
+    exit_code: int
+    stats: dict = field(default_factory=dict)
+    without: tuple[str, ...] = ()  # sensors the autopilot did not stream
+    compass_bias_deg: float | None = None  # of the simulated autopilot's attitude
+    autopilot: AutopilotOutcome | None = None  # its record (not in lockstep)
+    flight_start: tuple[float, float] | None = None  # (t_source, t_capture): its first frame
+
+
+def aligned_time(estimator: object, rows: list[dict]) -> float | None:
+    """Sequence time of the frame at which the fusion's map first aligned (None: never, or no
+    fusion)."""
+    capture = getattr(estimator, "first_aligned_s", None)
+    return next((r["t_source"] for r in rows if r["t_capture"] == capture), None)

@@ -1,0 +1,57 @@
+"""The IMU gate (daemon/fusion/imu_gate.py): duplicates and spikes are kept from the filter, a
+real change of acceleration passes, and a stream that keeps failing is dropped and taken back."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from daemon.fusion.imu_gate import READMIT_S, SPIKE_FLOOR, ImuGate
+
+HOVER = np.array([0.0, 0.0, -9.81])
+
+
+def feed(gate: ImuGate, accels, t0: float = 0.0, hz: float = 50.0, source: str = "SCALED_IMU"):
+    """Admit each acceleration in turn at `hz`; the verdicts."""
+    return [gate.admit(source, t0 + k / hz, t0 + k / hz, a) for k, a in enumerate(accels)]
+
+
+def noisy(n: int, seed: int = 0, mean: np.ndarray = HOVER) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return list(mean + rng.normal(0.0, 1.5, (n, 3)))  # a vibrating vehicle's filtered IMU
+
+
+def test_a_vibrating_stream_passes_whole():
+    gate = ImuGate()
+    assert all(feed(gate, noisy(500)))
+    assert gate.rejected == 0
+
+
+def test_a_spike_is_rejected_and_a_lasting_change_passes_within_half_the_window():
+    gate = ImuGate()
+    accels = noisy(100)
+    accels[50] = HOVER + np.array([0.0, 0.0, 2 * SPIKE_FLOOR])  # one corrupt sample
+    step = HOVER + np.array([1.5 * SPIKE_FLOOR, 0.0, 0.0])  # a hard manoeuvre that lasts
+    verdicts = feed(gate, accels + [step] * 20)
+    assert verdicts[50] is False and all(verdicts[:50]) and all(verdicts[51:100])
+    assert all(verdicts[104:])  # the median has moved: the new acceleration is real
+
+
+def test_a_duplicate_stamp_is_not_integrated_twice():
+    gate = ImuGate()
+    feed(gate, noisy(20))
+    assert gate.admit("SCALED_IMU", 19 / 50, 0.5, HOVER) is False
+    assert gate.admit("HIGHRES_IMU", 19 / 50, 0.5, HOVER) is True  # another stream's own stamps
+
+
+def test_a_failing_stream_is_dropped_said_and_taken_back_when_clean():
+    said: list[str] = []
+    gate = ImuGate(said.append)
+    rng = np.random.default_rng(1)
+    accels = noisy(300)
+    for k in range(100, 200, 3):  # a third of the samples corrupt for 2 s
+        accels[k] = HOVER + rng.uniform(-1, 1, 3) * 10 * SPIKE_FLOOR
+    verdicts = feed(gate, accels + noisy(int(READMIT_S * 50) + 50, seed=2), t0=0.0)
+    assert len(said) == 2 and "dropped" in said[0] and "used again" in said[1]
+    dropped = [k for k, ok in enumerate(verdicts) if not ok and k >= 200]
+    assert dropped and dropped[-1] < 200 + READMIT_S * 50 + 10  # clean samples not used
+    assert verdicts[-1] is True

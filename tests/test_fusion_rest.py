@@ -1,0 +1,37 @@
+"""When the filter takes the vehicle to stand still (daemon/fusion/rest.py): the autopilot's
+land detector, or disarmed with a quiet IMU; one corrupt report never stops a flying vehicle."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from daemon.fusion.config import FusionConfig
+from daemon.fusion.rest import CONFIRM, GRAVITY, RestDetector
+
+STILL = np.array([0.0, 0.0, -GRAVITY])
+
+
+def test_landed_counts_once_confirmed_and_airborne_at_once():
+    rest = RestDetector(FusionConfig())
+    rest.on_landed(0.0, True)  # the first word stands
+    assert rest.state(0.1) is True
+    rest.on_landed(1.0, False)  # take-off: at once
+    assert rest.state(1.1) is False
+    rest.on_landed(2.0, True)  # one corrupt "on the ground" in flight
+    assert rest.state(2.1) is False
+    rest.on_landed(3.0, False)
+    for k in range(CONFIRM):  # a real landing repeats itself
+        rest.on_landed(4.0 + k, True)
+    assert rest.state(4.0 + CONFIRM) is True
+
+
+def test_a_disarmed_vehicle_stands_still_only_with_a_quiet_imu():
+    rest = RestDetector(FusionConfig())
+    rest.on_armed(0.0, False)
+    for k in range(20):
+        rest.on_imu(0.5 + 0.02 * k, STILL)
+    assert rest.state(0.9) is True
+    rest.on_armed(1.0, True)
+    assert rest.state(1.0) is False
+    rest.on_armed(1.5, False)  # one corrupt "disarmed" in flight
+    assert rest.state(1.5) is False

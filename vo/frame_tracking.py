@@ -1,0 +1,87 @@
+"""Tracking a frame against the map (thesis 6.7): constant-velocity prior, sparse image
+alignment to the last frame, map matching and pose refinement, the quality of 6.10 and the
+lost state after bad frames in a row (6.9), and the keyframe decision (6.6)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from vo.config import TrackerConfig
+from vo.frame import Frame
+from vo.frame_alignment import align_frame
+from vo.keyframe_policy import KeyframePolicy
+from vo.map_matching import MapMatcher, Matches
+from vo.pose_optimizer import pose_covariance
+from vo.quality import LostCounter
+from vo.result import FrameResult, Quality, ms_since
+from vo.se3 import inv_se3
+
+
+class FrameTracking:
+    """Tracks frames one after the other from the last tracked frame of one map."""
+
+    def __init__(self, config: TrackerConfig, matcher: MapMatcher, keyframes: KeyframePolicy):
+        self.config = config
+        self.matcher = matcher
+        self.keyframes = keyframes
+        self.last: Frame | None = None  # the last frame with a pose in this map
+        self.motion = np.eye(4)  # T_c_w of the last frame times the inverse of the one before
+        self.lost = LostCounter(config)
+
+    def track(self, frame: Frame, timings: dict[str, float]) -> tuple[FrameResult, bool]:
+        """Track frame from the last one: its result (quality LOST once too many frames in a
+        row were bad) and whether it becomes a keyframe."""
+        cfg = self.config
+        last = self.last
+        motion = self.motion if cfg.constant_velocity else np.eye(4)
+        frame.T_c_w = motion @ last.T_c_w
+        t0 = time.perf_counter()
+        align_frame(frame, last, last.feat_point, last.feat_px, self.matcher.map.points,
+                    self.matcher.camera, cfg)
+        timings["align"] = ms_since(t0)
+        m = self.matcher.match(frame, timings)
+        quality = self.matcher.quality(m)
+        result = FrameResult(frame.t, None, quality, n_matches=len(m.ids),
+                             n_attempts=m.n_attempts, n_inliers=m.n_inliers,
+                             n_hypotheses=m.n_hypotheses)
+        if quality == Quality.BAD:
+            if self.lost.update(quality):
+                result.quality = Quality.LOST
+            return result, False
+        self.lost.update(quality)
+        self.matcher.accept(frame, m)
+        self.motion = frame.T_c_w @ inv_se3(last.T_c_w)
+        self.last = frame
+        n_seen = m.n_inliers if cfg.kf_count_inliers else m.n_visible
+        keyframe = self.keyframes.due(n_seen, quality == Quality.GOOD)
+        result.T_w_c = frame.T_w_c
+        result.covariance = pose_covariance(m.H, m.sigma, result.T_w_c)
+        return result, keyframe
+
+    def start(self, frame: Frame, n_visible: int) -> FrameResult:
+        """Track on from the second keyframe of a new map (its points `frame.feat_point`):
+        its result, a new segment with the covariance of its pose from its matches."""
+        self.last = frame
+        self.motion = np.eye(4)
+        self.keyframes.restart()
+        frame.n_visible = n_visible
+        ids = frame.feat_point
+        _, H, sigma, _ = self.matcher.optimize(frame, ids, frame.feat_px, frame.feat_level)
+        cov = pose_covariance(H, sigma, frame.T_w_c)
+        n = len(ids)
+        return FrameResult(frame.t, frame.T_w_c, Quality.GOOD, covariance=cov, n_matches=n,
+                           n_attempts=n, n_inliers=n, new_segment=True)
+
+    def resume(self, frame: Frame, m: Matches, cov: np.ndarray) -> FrameResult:
+        """Track on from a relocalised frame (its matches m, pose covariance cov): its result,
+        a new segment."""
+        self.matcher.accept(frame, m)
+        self.lost = LostCounter(self.config)
+        self.motion = np.eye(4)
+        self.last = frame
+        return FrameResult(frame.t, frame.T_w_c, self.matcher.quality(m), covariance=cov,
+                           n_matches=len(m.ids), n_attempts=m.n_attempts,
+                           n_inliers=m.n_inliers, new_segment=True,
+                           n_hypotheses=m.n_hypotheses)

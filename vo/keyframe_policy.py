@@ -1,0 +1,54 @@
+"""When a tracked frame becomes a keyframe (thesis 6.6): after enough frames when the points seen
+fall below a ratio of those seen at the last keyframe, or at once when too many are lost."""
+
+from __future__ import annotations
+
+from vo.config import TrackerConfig
+from vo.mapping import Mapper
+
+
+class KeyframePolicy:
+    """Counts the tracked frames since the last keyframe and the points seen then."""
+
+    def __init__(self, config: TrackerConfig, mapper: Mapper):
+        self.config = config
+        self.mapper = mapper
+        self.frames_since_kf = 0
+        self.kf_visible: int | None = None  # points seen at the last keyframe
+
+    def restart(self) -> None:
+        """A new map: the first tracked frame sets the reference (the initial map's count,
+        all LK tracks, is not comparable with a tracked frame's, one match per grid cell)."""
+        self.frames_since_kf = 0
+        self.kf_visible = None
+
+    def due(self, n_seen: int, good: bool) -> bool:
+        """Count a tracked frame that sees n_seen map points; True when it becomes a keyframe
+        (only a good frame can). The points "seen when the keyframe was made" (6.6) include
+        its new candidates, which tracking uses once the mapper has added them and updated
+        them candidate_min_updates times: until then the reference is the most points seen
+        (else a keyframe taken with few points keeps the reference low and the next one comes
+        too late). The window counts the frames mapped since the keyframe, not those tracked:
+        a mapping thread that lags updates the candidates later. It applies to the count of
+        projected points only: with inlier counts (the default) it took keyframes too often."""
+        self.frames_since_kf += 1
+        if self.kf_visible is None:
+            self.kf_visible = n_seen
+        elif (not self.config.kf_count_inliers
+              and self.mapper.frames_since_keyframe <= self.config.candidate_min_updates):
+            self.kf_visible = max(self.kf_visible, n_seen)
+        if not (good and self._needed(n_seen)):
+            return False
+        self.frames_since_kf = 0
+        self.kf_visible = n_seen
+        return True
+
+    def _needed(self, n_seen: int) -> bool:
+        """Keyframe policy of 6.6: enough frames and points lost, or too many points lost."""
+        cfg = self.config
+        if n_seen < (1.0 - cfg.lost_points_ratio) * self.kf_visible:
+            return True
+        # the thesis policy is relative to the last keyframe; a floor keeps a sparse map
+        # (a keyframe taken where little was visible) from never growing again
+        return self.frames_since_kf >= cfg.kf_min_frames and (
+            n_seen < cfg.kf_points_ratio * self.kf_visible or n_seen < cfg.kf_min_points)

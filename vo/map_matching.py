@@ -1,0 +1,166 @@
+"""Matching the map in a frame whose pose prior is set (thesis 6.7.2-6.8): project and match map
+points (vo.reprojector), optionally RANSAC outlier rejection with a rescue, Tukey Gauss-Newton
+pose refinement (vo.pose_optimizer); the quality of 6.10 from the result, and the points'
+found / missed bookkeeping once a frame's pose is accepted."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib.camera import CameraModel
+from vo import outlier_rejection
+from vo.config import TrackerConfig
+from vo.frame import Frame
+from vo.map import CANDIDATE, CONVERGED, Map
+from vo.pose_optimizer import depth_whitening, optimize_pose
+from vo.quality import classify
+from vo.reprojector import Reprojector
+from vo.result import Quality, ms_since
+from vo.se3 import orthonormalized
+
+MIN_POSE_MATCHES = 6
+
+
+@dataclass
+class Matches:
+    """One frame's matched map points and the pose refined from them."""
+
+    ids: np.ndarray
+    uv: np.ndarray
+    levels: np.ndarray
+    n_visible: int
+    n_attempts: int
+    attempted: np.ndarray
+    inlier: np.ndarray
+    T: np.ndarray
+    H: np.ndarray | None
+    sigma: float
+    n_hypotheses: int = 0
+
+    @property
+    def n_inliers(self) -> int:
+        """Matches that survived the pose refinement."""
+        return int(self.inlier.sum())
+
+
+class MapMatcher:
+    """Matches one map's points in frames and refines their poses from the matches."""
+
+    def __init__(self, camera: CameraModel, config: TrackerConfig, map_: Map,
+                 reprojector: Reprojector):
+        self.camera, self.config, self.map, self.reprojector = camera, config, map_, reprojector
+        self.focal = float(np.sqrt(camera.fx * camera.fy))
+
+    def match(self, frame: Frame, timings: dict[str, float]) -> Matches:
+        """Map points matched in frame (pose prior set) and the pose refined from them."""
+        cfg = self.config
+        if cfg.track_candidates or cfg.track_search_fallback or cfg.matcher == "orb":
+            t0 = time.perf_counter()
+            frame.corners(cfg.fast_threshold, cfg.track_corner_level)  # searches among corners
+            timings["corners"] = ms_since(t0)
+        t0 = time.perf_counter()
+        ids, uv, levels, n_visible, n_attempts, attempted = self._reproject(frame)
+        timings["reproject"] = ms_since(t0)
+        m = Matches(ids, uv, levels, n_visible, n_attempts, attempted,
+                    np.zeros(len(ids), dtype=bool), frame.T_c_w, None, 0.0)
+        if len(ids) < MIN_POSE_MATCHES:
+            return m
+        t0 = time.perf_counter()
+        use = np.ones(len(ids), dtype=bool)
+        if cfg.outlier_rejection and len(ids) > outlier_rejection.SUBSET:
+            use, m.n_hypotheses = self._reject_outliers(frame, ids, uv, levels)
+            timings["ransac"] = ms_since(t0)
+        if use.sum() >= MIN_POSE_MATCHES:
+            T, H, sigma, err = self.optimize(frame, ids[use], uv[use], levels[use])
+            if cfg.outlier_rejection:
+                # rescue: outliers within a wider threshold of the inlier pose join them
+                frame.T_c_w, prior = T, frame.T_c_w
+                use = self._errors(frame, ids, uv) * self.focal < cfg.ransac_rescue_px
+                frame.T_c_w = prior
+                T, H, sigma, err = self.optimize(frame, ids[use], uv[use], levels[use])
+            m.T, m.H, m.sigma = T, H, sigma
+            m.inlier[use] = err * self.focal < cfg.reprojection_inlier_px
+        timings["pose"] = ms_since(t0)
+        return m
+
+    def quality(self, m: Matches) -> Quality:
+        """Quality of 6.10; a match counts once it survives the pose refinement."""
+        if m.n_inliers < MIN_POSE_MATCHES:
+            return Quality.BAD
+        return classify(m.n_inliers, m.n_attempts, self.config)
+
+    def accept(self, frame: Frame, m: Matches) -> None:
+        """Give frame its refined pose and matches; update the points' found/missed counts."""
+        cfg = self.config
+        ids, inlier = m.ids, m.inlier
+        frame.T_c_w = orthonormalized(m.T)
+        frame.pose_info = m.H
+        frame.set_features(ids[inlier], m.uv[inlier], m.levels[inlier])
+        frame.n_visible = m.n_visible
+        pts = self.map.points
+        pts.n_found[ids[inlier]] += 1
+        if cfg.outlier_rejection:
+            self._forget_rejected(ids, inlier)
+        missed = np.setdiff1d(m.attempted, ids)
+        pts.n_missed[missed] += 1
+        # points that keep failing (occluded, badly placed, moving) leave the map
+        hopeless = (pts.n_missed[missed] > cfg.point_max_missed) & (
+            pts.n_missed[missed] > 2 * pts.n_found[missed])
+        pts.delete(missed[hopeless])
+
+    def optimize(self, frame: Frame, ids: np.ndarray, uv: np.ndarray, levels: np.ndarray):
+        """Pose refinement from matches; returns (T_c_w, H, sigma, per-match error)."""
+        obs = self._normalised(uv)
+        pts = self.map.points
+        whiten = depth_whitening(frame.T_c_w, self.map.kf_T_c_w, pts.host[ids], pts.f[ids],
+                                 pts.rho[ids], pts.sigma[ids], 1.0 / self.focal)
+        return optimize_pose(np.ascontiguousarray(pts.pos_w[ids]), obs,
+                             np.ascontiguousarray(levels, dtype=np.int64), whiten, frame.T_c_w,
+                             self.config.pose_iterations, 0.5 / self.focal)
+
+    def _normalised(self, uv: np.ndarray) -> np.ndarray:
+        """Undistorted normalised image-plane coordinates of level-0 pixels."""
+        f = self.camera.unproject(uv)
+        return np.ascontiguousarray(f[:, :2] / f[:, 2:])
+
+    def _reproject(self, frame: Frame):
+        cfg = self.config
+        pts = self.map.points
+        usable = pts.status == CONVERGED
+        if cfg.track_candidates:
+            usable |= (pts.status == CANDIDATE) & (pts.n_updates >= cfg.candidate_min_updates)
+        idx = np.flatnonzero(usable)
+        search = pts.status[idx] == CANDIDATE
+        return self.reprojector.run(frame, self.map, idx, search)
+
+    def _errors(self, frame: Frame, ids: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        """Reprojection errors (normalised plane) of matches at frame's pose."""
+        pos = np.ascontiguousarray(self.map.points.pos_w[ids])
+        return np.sqrt(outlier_rejection.squared_errors(pos, self._normalised(uv), frame.T_c_w))
+
+    def _reject_outliers(self, frame: Frame, ids: np.ndarray, uv: np.ndarray,
+                         levels: np.ndarray) -> tuple[np.ndarray, int]:
+        """RANSAC inliers (6.8) among the matches, hypotheses from frame's prior pose; and
+        how many hypotheses were fitted."""
+        cfg = self.config
+        subsets = outlier_rejection.random_subsets(len(ids), cfg.ransac_max_hypotheses,
+                                                   cfg.seed + frame.id)
+        inlier, tried = outlier_rejection.ransac(
+            np.ascontiguousarray(self.map.points.pos_w[ids]), self._normalised(uv),
+            1.0 / 2.0 ** levels, frame.T_c_w, subsets, cfg.ransac_threshold_px / self.focal,
+            cfg.ransac_probability)
+        return inlier, int(tried)
+
+    def _forget_rejected(self, ids: np.ndarray, inlier: np.ndarray) -> None:
+        """Map hygiene of outlier rejection (6.8): matched points the pose rejects in
+        point_max_rejected tracked frames in a row have moved or were badly placed; they leave
+        the map instead of being matched (and rejected) again in every frame."""
+        pts = self.map.points
+        pts.n_rejected[ids[inlier]] = 0
+        rejected = ids[~inlier]
+        pts.n_rejected[rejected] += 1
+        pts.delete(rejected[pts.n_rejected[rejected] >= self.config.point_max_rejected])
+

@@ -1,0 +1,105 @@
+"""Relocalisation (thesis 6.9): while tracking is lost, find the frame's pose in the map by
+aligning it to keyframes, newest first, from priors that phase correlation gives, then matching
+the map's points; a pose is accepted with enough inliers and a well determined rotation."""
+
+from __future__ import annotations
+
+import time
+
+import cv2
+import numpy as np
+
+from calib.camera import CameraModel
+from vo.config import TrackerConfig
+from vo.frame import Frame
+from vo.frame_alignment import align_frame
+from vo.map_matching import MapMatcher, Matches
+from vo.pose_optimizer import pose_covariance
+from vo.result import Quality, ms_since
+from vo.se3 import exp_se3, orthonormalized
+
+
+class Relocalizer:
+    """Looks for a lost frame's pose among the keyframes of the matcher's map."""
+
+    def __init__(self, camera: CameraModel, config: TrackerConfig, matcher: MapMatcher):
+        self.camera, self.config, self.matcher = camera, config, matcher
+        self.map = matcher.map
+
+    def find(self, frame: Frame, timings: dict[str, float]
+             ) -> tuple[Matches, np.ndarray] | None:
+        """The first keyframe (newest first) that gives frame a pose: the matches (the
+        refined pose in them) and the pose's covariance; None when none does."""
+        cfg = self.config
+        t0 = time.perf_counter()
+        slots = sorted(self.map.keyframes, key=lambda s: -self.map.keyframes[s].id)
+        if cfg.reloc_max_keyframes > 0:
+            slots = slots[:cfg.reloc_max_keyframes]
+        found = None
+        for slot in slots:
+            if not self._align_to_keyframe(frame, self.map.keyframes[slot]) < (
+                    cfg.reloc_max_residual_ratio):
+                continue
+            m = self.matcher.match(frame, {})
+            if m.n_inliers >= cfg.reloc_min_matches and self.matcher.quality(m) != Quality.BAD:
+                cov = pose_covariance(m.H, m.sigma, orthonormalized(m.T))
+                if _rotation_std_deg(cov) <= cfg.reloc_max_rotation_std_deg:
+                    found = m, cov
+                    break
+        timings["relocalize"] = ms_since(t0)
+        return found
+
+    def _align_to_keyframe(self, frame: Frame, kf: Frame) -> float:
+        """Frame's pose by direct alignment to keyframe kf from the best of the shifted
+        priors; returns the residual ratio of that alignment."""
+        ids, px = self.map.observed_by(kf.slot)
+        X = self.map.points.pos_w[ids] @ kf.T_c_w[:3, :3].T + kf.T_c_w[:3, 3]
+        depth = float(np.median(X[:, 2])) if len(X) else 1.0
+        best, best_T = np.inf, kf.T_c_w
+        for prior in shifted_priors(kf, frame, self.camera, self.config.reloc_shift_level,
+                                    depth):
+            frame.T_c_w = prior
+            ratio = align_frame(frame, kf, ids, px, self.map.points, self.camera, self.config,
+                                measure=True)
+            if ratio < best:
+                best, best_T = ratio, frame.T_c_w
+        frame.T_c_w = best_T
+        return best
+
+
+def shifted_priors(kf: Frame, frame: Frame, camera: CameraModel, level: int,
+                   depth: float) -> list[np.ndarray]:
+    """T_c_w priors for frame from the keyframe's pose and the image shift that phase
+    correlation finds between the two images at pyramid `level` (the view may be far outside
+    the basin of direct alignment): the keyframe turned, and the keyframe moved sideways
+    (scene at `depth`), so that its image moves by that shift."""
+    a = np.float32(kf.pyr.images[level])
+    b = np.float32(frame.pyr.images[level])
+    (du, dv), _ = cv2.phaseCorrelate(a - a.mean(), b - b.mean())
+    # the correlation is circular: a shift by more than half the image (a view that overlaps
+    # the keyframe by less than half) shows up wrapped, so its unwrapped twin is tried too
+    priors = []
+    for su in (du, du - np.sign(du) * a.shape[1]):
+        for sv in (dv, dv - np.sign(dv) * a.shape[0]):
+            priors += _shift_priors(kf.T_c_w, camera, su * 2.0 ** level, sv * 2.0 ** level,
+                                    depth)
+    return priors
+
+
+def _shift_priors(T_c_w: np.ndarray, camera: CameraModel, du: float, dv: float,
+                  depth: float) -> list[np.ndarray]:
+    """The pose T_c_w turned, and moved sideways (scene at `depth`), so that its image content
+    shifts by (du, dv) pixels."""
+    # content moves by +du when the camera turns by du / f about its y axis, or moves by
+    # -du * depth / f along its x axis
+    turn = np.array([0.0, 0.0, 0.0, -np.arctan(dv / camera.fy), np.arctan(du / camera.fx), 0.0])
+    move = np.eye(4)
+    move[:3, 3] = (du * depth / camera.fx, dv * depth / camera.fy, 0.0)
+    return [exp_se3(turn) @ T_c_w, move @ T_c_w]
+
+
+def _rotation_std_deg(cov: np.ndarray | None) -> float:
+    """The largest rotation standard deviation (degrees) of a pose covariance (inf if none)."""
+    if cov is None:
+        return np.inf
+    return float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(cov[3:, 3:])[-1], 0.0))))
