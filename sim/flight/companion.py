@@ -21,6 +21,7 @@ from daemon.autopilot_watch import AutopilotWatch
 from daemon.config import Config
 from daemon.frames import Frame
 from daemon.fusion.estimator import FusionEstimator
+from daemon.health import Health
 from daemon.mavlink_codec import MavlinkCodec
 from daemon.origin import OriginSetter
 from daemon.statustext import StatusTexts
@@ -68,7 +69,7 @@ class LockstepCompanion:
         self.sent: list[VisionMessage] = []
         self.rows: list[dict] = []
         self._next_heartbeat = self._next_housekeeping = -np.inf
-        self._state = "starting"
+        self._health = Health.STARTING
 
     def _write(self, data: bytes) -> bool:
         self._out(data)
@@ -98,8 +99,8 @@ class LockstepCompanion:
         now = self.clock()
         if now >= self._next_heartbeat:
             self._next_heartbeat = max(self._next_heartbeat + 1.0, now)
-            state = self._state if self._state in messages.SYSTEM_STATUS else "starting"
-            self.codec.send(messages.heartbeat(self.codec.mav, state))
+            self.codec.send(messages.heartbeat(self.codec.mav,
+                                               self._health.report.system_status))
         if now >= self._next_housekeeping:
             self._next_housekeeping = now + HOUSEKEEPING_S
             self.watch.check(now)
@@ -123,7 +124,7 @@ class LockstepCompanion:
     def publish(self, tracked: Tracked) -> None:
         """The estimator's turn for a tracked frame; its estimate goes out as ODOMETRY."""
         result = tracked.result
-        self._state = result.quality
+        self._health = Health.of_tracking(result.quality)
         estimate = self.estimator.on_frame(result, tracked.t_capture)
         if estimate is not None:
             msg = messages.odometry(self.codec.mav, estimate)
