@@ -22,6 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "fusion-sim": ("sim.fusion_sim_command", "fusion EKF on a simulated flight: accuracy, NEES"),
     "bench-latency": ("sim.bench_latency_command", "capture-to-send latency vs tracking time"),
     "replay": ("sim.replay.command", "the service on a sequence against a simulated autopilot"),
+    "fly": ("sim.flight.command", "closed loop: a simulated ArduCopter flies a mission on us"),
     "render": ("sim.render_command", "render a synthetic flight: images, ground truth, IMU"),
     "eval": ("sim.eval_command", "score an estimated trajectory against ground truth (ATE, RPE)"),
     "track": ("sim.track_command", "run the SDVL tracker over a sequence: accuracy and timing"),

@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from sim.autopilot import configured_options
 from sim.autopilot.gcs_vision import JitterCorrection, PoseSample, covariance_errors
+from sim.autopilot.nav_filter import NavFilter
 from sim.autopilot.param_store import ParamStore
 from sim.autopilot.params import ardupilot_specs
 from sim.autopilot.records import EventKind
@@ -185,3 +186,15 @@ def test_viso_orient_turns_the_attitude_only():
     out = odom.handle_pose(sample, 0.0)
     assert out.position == pytest.approx([1.0, 2.0, 3.0])
     assert out.attitude.magnitude() == pytest.approx(0.0, abs=1e-9)
+
+
+def test_a_delayed_measurement_meets_the_state_of_its_own_time():
+    """NavFilter.state_at interpolates between kept steps, keeps corrections made since, and
+    answers the oldest kept for anything older than its 0.5 s history."""
+    nav = NavFilter(0.35)
+    for k in range(1, 101):  # 1 m/s^2 north for 2 s at 50 Hz, from rest
+        nav.predict(np.array([1.0, 0.0, 0.0]), 0.02, k * 0.02)
+    assert nav.state_at(1.91)[1][0] == pytest.approx(1.91)  # between two steps
+    nav.reset([0], [10.0], 0.01, 0)  # a position reset of +8 m moves the past with it
+    assert nav.state_at(1.9)[0][0] == pytest.approx(1.9 ** 2 / 2 + 8.0)
+    assert nav.state_at(0.1)[1][0] == pytest.approx(1.5)  # the oldest kept, not beyond

@@ -16,6 +16,7 @@ from abc import ABC, abstractmethod
 
 from pymavlink.dialects.v20 import common as mavlink2
 
+from sim.autopilot.dynamics import FlyingVehicle
 from sim.autopilot.options import SimOptions
 from sim.autopilot.param_store import ParamStore
 from sim.autopilot.params import ParamSpec
@@ -43,7 +44,8 @@ class AutopilotModel(ABC):
         self.mav = self.dialect.MAVLink(None, srcSystem=options.system_id, srcComponent=1)
         self.record = AutopilotRecord()
         self.outbox: list = []
-        stored = options.stored_params()
+        hardware = {} if options.dynamics is None else options.dynamics.hardware_params()
+        stored = {**hardware, **options.stored_params()}
         self.params = ParamStore(self.param_specs(stored), stored)
         self.sensing = Sensing(options.imu_noise, options.seed)
         self.origin: tuple[int, int, int] | None = None
@@ -186,17 +188,30 @@ class AutopilotModel(ABC):
             self._down_until = None
             self.boot(now)
         behind = now - self._last_step
-        if behind > MAX_CATCH_UP_S:  # a starved thread: one long step rather than a backlog
-            self._predict(now, behind - IMU_DT)
+        if behind > MAX_CATCH_UP_S and not self.flies:
+            self._predict(now, behind - IMU_DT)  # a starved thread: one long step, not a backlog
         while now - self._last_step >= IMU_DT:
             self._predict(self._last_step + IMU_DT, IMU_DT)
         for name in self.schedule.due(now):
             self._send_stream(name, now)
 
+    @property
+    def flies(self) -> bool:
+        """Whether the vehicle flies on this model's controllers (SimOptions.dynamics)."""
+        return isinstance(self.vehicle, FlyingVehicle)
+
     def _predict(self, t: float, dt: float) -> None:
         self._last_step = t
-        reading = self.sensing.read(self.vehicle, self.uptime(t), dt)
+        if self.flies:
+            reading = self.fly(dt)
+        else:
+            reading = self.sensing.read(self.vehicle, self.uptime(t), dt)
         self.estimator_step(t, reading, dt)
+
+    def fly(self, dt: float) -> Reading:
+        """Run the firmware's fast loop (sensors, attitude control, motors, physics) for dt and
+        read its sensors for the estimator (firmwares whose vehicle can fly)."""
+        raise NotImplementedError(f"{type(self).__name__} has no flight controllers")
 
     def _send_stream(self, name: str, now: float) -> None:
         try:

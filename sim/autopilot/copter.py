@@ -13,6 +13,8 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from sim.autopilot.autopilot import AutopilotModel
 from sim.autopilot.ekf3 import Ekf3
+from sim.autopilot.flight_params import flight_specs
+from sim.autopilot.flying_copter import FlyingCopter
 from sim.autopilot.gcs_vision import JitterCorrection, vision_samples
 from sim.autopilot.param_store import ardupilot_cast
 from sim.autopilot.params import (
@@ -33,6 +35,7 @@ from sim.autopilot.streams import (
     Schedule,
     ardupilot_group_rates,
 )
+from sim.autopilot.vehicle import SENSOR_MESSAGES, sensor_message
 from sim.autopilot.visual_odom import Ahrs, VisualOdom
 
 VISION = ("ODOMETRY", "VISION_POSITION_ESTIMATE", "VISION_SPEED_ESTIMATE")
@@ -72,7 +75,7 @@ class ArduCopterModel(AutopilotModel):
     dialect = ardupilotmega
 
     def param_specs(self, stored: dict[str, float]) -> dict[str, ParamSpec]:
-        return ardupilot_specs(self.opt.release, stored)
+        return {**ardupilot_specs(self.opt.release, stored), **flight_specs()}
 
     def port_active(self) -> bool:
         return self._channel is not None
@@ -90,6 +93,11 @@ class ArduCopterModel(AutopilotModel):
         self._boot_height = None
         self._last_timesync = now
         self._sent_ts1 = -1
+        self.flying: FlyingCopter | None = None
+        if self.flies:
+            sensors = getattr(self, "_sensors", None)  # hardware: kept across reboots
+            self.flying = FlyingCopter(self.params, self.vehicle, self.opt.dynamics.seed, sensors)
+            self._sensors = self.flying.sensors
         if self.opt.heartbeat_hz is None or self.opt.heartbeat_hz > 0:
             self.schedule.set("HEARTBEAT", 1.0 / (self.opt.heartbeat_hz or 1.0))
         if self.opt.timesync_hz:
@@ -175,6 +183,23 @@ class ArduCopterModel(AutopilotModel):
         self.ekf.step(now, reading, dt)
         if now - self._ekf_check[0] >= EKF_CHECK_PERIOD_S:
             self._run_ekf_check(now)
+        if self.flying is not None:
+            self.flying.after_estimator(self.ekf, self.position_ok(now), now, dt)
+            if self.flying.flight.disarm_request is not None:
+                self._disarm(now, self.flying.flight.disarm_request)
+
+    def fly(self, dt: float) -> Reading:
+        return self.flying.fly(dt)
+
+    def stream_message(self, name: str, now: float) -> object | None:
+        """A flying vehicle's sensor streams carry its flight controller's readings."""
+        if self.flying is None or name not in SENSOR_MESSAGES:
+            return super().stream_message(name, now)
+        state = self.flying.reported()
+        if name == "DISTANCE_SENSOR" and "range" not in state:
+            return None  # no rangefinder (RNGFND1_TYPE 0 or none fitted)
+        uptime = self.uptime(now)
+        return sensor_message(self.mav, name, uptime, int(uptime * 1000), _Reported(state))
 
     def firmware_message(self, name: str, now: float) -> object | None:
         if name == "HEARTBEAT":
@@ -226,6 +251,12 @@ class ArduCopterModel(AutopilotModel):
         elif kind == "SET_MODE":
             custom = msg.custom_mode if msg.base_mode & 1 else None
             self.ack(msg, self._set_mode_common(custom, now), mavlink2.MAVLINK_MSG_ID_SET_MODE)
+        elif self.flying is not None and kind == "SET_POSITION_TARGET_LOCAL_NED" and \
+                msg.target_system == self.opt.system_id:
+            self.flying.position_target(msg)
+        elif self.flying is not None and kind == "RC_CHANNELS_OVERRIDE" and \
+                msg.target_system == self.opt.system_id:
+            self.flying.rc_override(msg, now, int(self.params.get(self._gcs_sysid_name())))
 
     def _vision(self, msg: object, now: float) -> None:
         pose, velocity = vision_samples(msg, now, self.jitter)
@@ -264,7 +295,13 @@ class ArduCopterModel(AutopilotModel):
         if msg.command == mavlink2.MAV_CMD_DO_SET_MODE:
             custom = int(msg.param2) if int(msg.param1) & 1 else None
             return self._set_mode_common(custom, now)
+        if msg.command == mavlink2.MAV_CMD_NAV_TAKEOFF and self.flying is not None:
+            ok = self.armed and self.flying.takeoff(msg)
+            return mavlink2.MAV_RESULT_ACCEPTED if ok else mavlink2.MAV_RESULT_FAILED
         return mavlink2.MAV_RESULT_UNSUPPORTED
+
+    def _gcs_sysid_name(self) -> str:
+        return "MAV_GCS_SYSID" if self.opt.release is Release.MASTER_2025 else "SYSID_MYGCS"
 
     # --- modes -----------------------------------------------------------------------------
 
@@ -299,9 +336,14 @@ class ArduCopterModel(AutopilotModel):
             self.say(Severity.WARNING, f"Mode change to {mode.name} failed: {failure}", now)
             self.record.events.append(Event(now, EventKind.MODE_REFUSED, mode.name))
             return False
+        self._enter_mode(mode, now)
+        return True
+
+    def _enter_mode(self, mode: Mode, now: float, pause: bool = False) -> None:
         self.mode = mode
         self.record.events.append(Event(now, EventKind.MODE, mode.name))
-        return True
+        if self.flying is not None:
+            self.flying.flight.set_mode(mode.number, pause)
 
     # --- arming ----------------------------------------------------------------------------
 
@@ -314,13 +356,24 @@ class ArduCopterModel(AutopilotModel):
         if msg.param1 == 0:
             if not self.armed:
                 return mavlink2.MAV_RESULT_ACCEPTED
-            flying = self._height_above_boot() > FLYING_HEIGHT_M
-            if flying and msg.param2 != FORCE_ARM_DISARM:
+            if self._in_the_air() and msg.param2 != FORCE_ARM_DISARM:
                 return mavlink2.MAV_RESULT_FAILED
-            self.armed = False
-            self.record.events.append(Event(now, EventKind.DISARMED))
+            self._disarm(now, "GCS")
             return mavlink2.MAV_RESULT_ACCEPTED
         return mavlink2.MAV_RESULT_UNSUPPORTED
+
+    def _in_the_air(self) -> bool:
+        """Not landed: the land detector's verdict on a flying vehicle; on a scripted one,
+        more than FLYING_HEIGHT_M above the boot height."""
+        if self.flying is not None:
+            return not self.flying.flight.land.complete
+        return self._height_above_boot() > FLYING_HEIGHT_M
+
+    def _disarm(self, now: float, why: str) -> None:
+        self.armed = False
+        if self.flying is not None:
+            self.flying.flight.disarm()
+        self.record.events.append(Event(now, EventKind.DISARMED, why))
 
     def _height_above_boot(self) -> float:
         if self._boot_height is None:
@@ -339,9 +392,10 @@ class ArduCopterModel(AutopilotModel):
             return mavlink2.MAV_RESULT_FAILED
         home_set = self.origin is not None and self.position_ok(now)
         if not home_set:
-            on_ground = self._height_above_boot() < FLYING_HEIGHT_M
-            self.ekf.reset_height_datum(self._last_baro, now, on_ground)
+            self.ekf.reset_height_datum(self._last_baro, now, not self._in_the_air())
         self.armed = True
+        if self.flying is not None:
+            self.flying.flight.arm()
         self.record.events.append(Event(now, EventKind.ARMED, self.mode.name))
         return mavlink2.MAV_RESULT_ACCEPTED
 
@@ -406,8 +460,17 @@ class ArduCopterModel(AutopilotModel):
             self.say(Severity.CRITICAL, "EKF variance", now)
             self.record.events.append(Event(now, EventKind.FAILSAFE, "EKF"))
             if self.mode.requires_position and self.params.get("FS_EKF_ACTION") > 0:
-                self.mode = MODES[9]
+                self._enter_mode(MODES[9], now, pause=True)  # set_mode_land_with_pause
                 self.say(Severity.CRITICAL, "EKF Failsafe: changed to LAND Mode", now)
-                self.record.events.append(Event(now, EventKind.MODE, "LAND"))
         elif count == 0 and self.failsafe_ekf:
             self.failsafe_ekf = False
+
+
+class _Reported:
+    """A flight controller's present readings in the shape sensor_message reads."""
+
+    def __init__(self, state: dict) -> None:
+        self._state = state
+
+    def state(self, _t: float) -> dict:
+        return dict(self._state)

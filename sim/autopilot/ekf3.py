@@ -10,7 +10,9 @@
   EK3_SRC1_POSXY is 6, tilt is aligned and a sample is there: "EKF3 IMU0 is using external nav
   data", "EKF3 IMU0 initial pos NED = x,y,z (m)" (and "initial vel NED" with external nav
   velocity); position and velocity are reset to it and the height to its z whatever
-  EK3_SRC1_POSZ says (ResetHeight with hgtMea = -extNavDataDelayed.pos.z).
+  EK3_SRC1_POSZ says (ResetHeight with hgtMea = -extNavDataDelayed.pos.z), its variance the
+  sample's constrain(posErr, 0.1, 10)^2: how fast the barometer then pulls a wrong height back
+  depends on the covariance the companion sent.
 - while using it (PosVelFusion.cpp SelectVelPosFusion/FuseVelPosNED): position fused with
   variance constrain(posErr, 0.01, 10)^2, velocity (EK3_SRC1_VELXY/VELZ 6) constrain(err, 0.05,
   5)^2, height from EK3_SRC1_POSZ (1 baro with EK3_ALT_M_NSE, 6 external nav with
@@ -21,6 +23,12 @@
 - the camera's VISO_POS_X/Y/Z lever arm is taken off position and velocity (turned by the
   attitude; CorrectExtNavForSensorOffset, CorrectExtNavVelForSensorOffset).
 - resetHeightDatum on arming without home: the barometer re-zeroed and the height set to 0.
+- ground effect (Copter's GND_EFFECT_COMP flags): while a takeoff is expected the baro height is
+  held no lower than before the takeoff (selectHeightForFusion's meaHgtAtTakeOff, 0.5 s filter);
+  while a takeoff or touchdown is expected the baro noise is 4x (gndEffectBaroScaler), and in a
+  touchdown a baro reading low by up to EK3_GND_EFF_DZ is not believed (FuseVelPosNED).
+- position resets are accumulated (getLastPosNorthEastReset / getLastPosDownReset) so the
+  position controller can move its targets with them.
 """
 
 from __future__ import annotations
@@ -32,6 +40,7 @@ import numpy as np
 
 from sim.autopilot.nav_filter import NavFilter
 from sim.autopilot.param_store import ParamStore
+from sim.autopilot.position_control import NavEstimate
 from sim.autopilot.records import AutopilotRecord, EstimateSample, Event, EventKind, Severity
 from sim.autopilot.sensing import Reading
 from sim.autopilot.visual_odom import ExtNavPose, ExtNavVelocity
@@ -44,6 +53,8 @@ HGT_RETRY_S = (5.0, 10.0)  # hgtRetryTimeMode12_ms, hgtRetryTimeMode0_ms (with v
 BARO_PERIOD_S = 0.05
 RECORD_PERIOD_S = 0.1
 NO_AID_POS_VAR = 0.5 ** 2  # R_OBS for the constant position fused while not aiding
+GND_EFFECT_BARO_SCALER = 4.0  # gndEffectBaroScaler
+TAKEOFF_HGT_TC_S = 0.5  # gndHgtFiltTC
 EXTNAV_SOURCE = 6
 BARO_SOURCE = 1
 
@@ -85,6 +96,12 @@ class Ekf3:
         self._last_meas_time = -np.inf
         self._last_reset_time = 0.0
         self._last_vel: ExtNavVelocity | None = None
+        self.reset_ne = np.zeros(2)
+        self.reset_d = 0.0
+        self.takeoff_expected = False
+        self.touchdown_expected = False
+        self._hgt_at_takeoff = 0.0
+        self.yaw = 0.0
 
     # --- inputs from AP_VisualOdom ---------------------------------------------------------
 
@@ -130,7 +147,11 @@ class Ekf3:
                 self._start(reading)
             return
         accel = reading.accel_ned if np.isfinite(reading.accel_ned).all() else np.zeros(3)
-        self.filter.predict(accel, dt, now)
+        self.yaw = float(reading.attitude.as_euler("ZYX")[0])
+        if reading.accel_steps is not None and np.isfinite(reading.accel_steps).all():
+            self.filter.predict_steps(reading.accel_steps, dt, now)  # at the IMU rate
+        else:
+            self.filter.predict(accel, dt, now)
         if self._pos is not None:
             self._pos = self._lever_arm(self._pos, reading)
         self._update_aiding(now)
@@ -195,10 +216,10 @@ class Ekf3:
             vx, vy, vz = self._last_vel.velocity
             self.say(Severity.INFO,
                      f"EKF3 IMU0 initial vel NED = {vx:3.1f},{vy:3.1f},{vz:3.1f} (m/s)")
-        step = self.filter.reset([2], [z], min(max(pose.pos_err, 0.1), 10.0) ** 2, 0)
+        step = self._reset_position([2], [z], min(max(pose.pos_err, 0.1), 10.0) ** 2)
         self.record.events.append(Event(now, EventKind.HEIGHT_RESET, "external nav start",
                                         float(-step[2])))
-        self.filter.reset([0, 1], [x, y], pose.pos_err ** 2, 0)
+        self._reset_position([0, 1], [x, y], pose.pos_err ** 2)
         if use_vel:
             self.filter.reset([0, 1], self._last_vel.velocity[:2], self._last_vel.err ** 2, 1)
         else:
@@ -240,12 +261,12 @@ class Ekf3:
 
     def _reset_to(self, pose: ExtNavPose, now: float, why: str) -> None:
         """ResetPositionNE, with ResetPositionD when external nav is the height source."""
-        step = self.filter.reset([0, 1], pose.position[:2], pose.pos_err ** 2, 0)
+        step = self._reset_position([0, 1], pose.position[:2], pose.pos_err ** 2)
         self.timers.last_pos_pass = now
         self.record.events.append(Event(now, EventKind.POSITION_RESET, why,
                                         float(np.hypot(step[0], step[1]))))
         if self._src("POSZ") == EXTNAV_SOURCE:
-            step = self.filter.reset([2], [pose.position[2]], pose.pos_err ** 2, 0)
+            step = self._reset_position([2], [pose.position[2]], pose.pos_err ** 2)
             self.record.events.append(Event(now, EventKind.HEIGHT_RESET, why, float(-step[2])))
 
     def _fuse_ext_nav_vel(self, velocity: ExtNavVelocity, now: float) -> None:
@@ -262,10 +283,34 @@ class Ekf3:
     def _fuse_baro(self, baro_alt: float, now: float) -> None:
         if self.aid is AidMode.NONE:
             self.filter.fuse([0, 1], self.last_known_ne, NO_AID_POS_VAR, now, 0, 1e3)
+        height = baro_alt - self.baro_offset
+        if not self.takeoff_expected:
+            alpha = BARO_PERIOD_S / (BARO_PERIOD_S + TAKEOFF_HGT_TC_S)
+            self._hgt_at_takeoff += (height - self._hgt_at_takeoff) * alpha
         if self._src("POSZ") != BARO_SOURCE:
             return
-        noise = min(max(self.params.get("EK3_ALT_M_NSE"), 0.1), 10.0) ** 2
-        self._fuse_height(baro_alt - self.baro_offset, noise, now, now)
+        noise = min(max(self.params.get("EK3_ALT_M_NSE"), 0.1), 10.0)
+        if self.takeoff_expected:
+            height = max(height, self._hgt_at_takeoff)
+        if self.touchdown_expected:
+            estimate = -self.filter.position[2]
+            if height < estimate:  # reads low near the ground: a dead zone
+                height = min(height + self.params.get("EK3_GND_EFF_DZ"), estimate)
+        if self.takeoff_expected or self.touchdown_expected:
+            noise *= GND_EFFECT_BARO_SCALER
+        self._fuse_height(height, noise ** 2, now, now)
+
+    def _reset_position(self, axes: list[int], value: list | np.ndarray, var: float) -> np.ndarray:
+        """Reset position axes; the step is remembered for the controllers."""
+        step = self.filter.reset(axes, value, var, 0)
+        self.reset_ne = self.reset_ne + step[:2]
+        self.reset_d += float(step[2])
+        return step
+
+    def estimate(self) -> NavEstimate:
+        """What the controllers steer with (AP_InertialNav's view of the EKF)."""
+        return NavEstimate(self.filter.position.copy(), self.filter.velocity.copy(), self.yaw,
+                           self.reset_ne.copy(), self.reset_d)
 
     def _fuse_height(self, height: float, var: float, t_meas: float, now: float) -> None:
         fused = self.filter.fuse([2], np.array([-height]), var, t_meas, 0, self._gate("HGT"))
@@ -273,7 +318,7 @@ class Ekf3:
         if fused.accepted:
             self.timers.last_hgt_pass = now
         elif now - self.timers.last_hgt_pass > self._hgt_retry(now):
-            step = self.filter.reset([2], [-height], var, 0)
+            step = self._reset_position([2], [-height], var)
             self.timers.last_hgt_pass = now
             self.record.events.append(Event(now, EventKind.HEIGHT_RESET, "height timeout",
                                             float(-step[2])))
@@ -290,7 +335,8 @@ class Ekf3:
         if not self.started or not on_ground or self._src("POSZ") == 2:
             return
         self.baro_offset = baro_alt
-        step = self.filter.reset([2], [0.0], self.filter.variance(2, 0), 0)
+        self._hgt_at_takeoff = 0.0
+        step = self._reset_position([2], [0.0], self.filter.variance(2, 0))
         self.record.events.append(Event(now, EventKind.HEIGHT_RESET, "height datum reset",
                                         float(-step[2])))
 

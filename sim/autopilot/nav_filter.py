@@ -13,7 +13,7 @@ taken as given.
 
 from __future__ import annotations
 
-from collections import deque
+import bisect
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,28 +42,61 @@ class NavFilter:
         self.velocity = np.zeros(3)
         self.cov = np.tile(np.diag([INITIAL_POS_VAR, INITIAL_VEL_VAR]), (3, 1, 1))
         self.t = 0.0
-        self._history: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
+        self._times: list[float] = []  # kept steps; positions/velocities less the offsets
+        self._positions: list[np.ndarray] = []
+        self._velocities: list[np.ndarray] = []
+        self._offset = (np.zeros(3), np.zeros(3))  # corrections since, applied to all kept
 
     def predict(self, accel_ned: np.ndarray, dt: float, t: float) -> None:
         """Propagate by dt with the NED acceleration (m/s^2, gravity removed)."""
         self.position = self.position + self.velocity * dt + 0.5 * accel_ned * dt * dt
         self.velocity = self.velocity + accel_ned * dt
+        self._keep(t)
+        self._propagate_cov(dt, t)
+
+    def _keep(self, t: float) -> None:
+        self._times.append(t)
+        self._positions.append(self.position - self._offset[0])
+        self._velocities.append(self.velocity - self._offset[1])
+
+    def predict_steps(self, accels: np.ndarray, dt: float, t: float) -> None:
+        """Propagate by dt in len(accels) equal steps (an IMU faster than the filter's
+        fusion step); the covariance once for the whole dt."""
+        step = dt / len(accels)
+        start = t - dt
+        for k, accel in enumerate(accels, start=1):
+            self.position = self.position + self.velocity * step + 0.5 * accel * step * step
+            self.velocity = self.velocity + accel * step
+            self._keep(start + k * step)
+        self._propagate_cov(dt, t)
+
+    def _propagate_cov(self, dt: float, t: float) -> None:
         F = np.array([[1.0, dt], [0.0, 1.0]])
         q = (self.accel_noise * dt) ** 2
         Q = np.array([[0.25 * dt * dt * q, 0.5 * dt * q], [0.5 * dt * q, q]])
         self.cov = F @ self.cov @ F.T + Q
         self.t = t
-        self._history.append((t, self.position.copy(), self.velocity.copy()))
-        while self._history and self._history[0][0] < t - HISTORY_S:
-            self._history.popleft()
+        old = bisect.bisect_left(self._times, t - HISTORY_S)
+        if old > len(self._times) // 2:  # trim in batches
+            del self._times[:old], self._positions[:old], self._velocities[:old]
 
     def state_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """The estimate at time t (the oldest kept, or now, outside the history)."""
-        if not self._history or t >= self.t:
+        """The estimate at time t, interpolated between the kept steps (the oldest kept, or now,
+        outside the history): a measurement is compared with the state of its own time, as
+        EKF3/EKF2 do on their delayed horizon, not with the nearest prediction step."""
+        if not self._times or t >= self.t:
             return self.position, self.velocity
-        times = np.array([h[0] for h in self._history])
-        i = int(np.clip(np.searchsorted(times, t), 0, len(times) - 1))
-        return self._history[i][1], self._history[i][2]
+        first = bisect.bisect_left(self._times, self.t - HISTORY_S)  # oldest still kept
+        i = bisect.bisect_left(self._times, t)
+        dp, dv = self._offset
+        if i <= first or i >= len(self._times):
+            i = min(max(i, first), len(self._times) - 1)
+            return self._positions[i] + dp, self._velocities[i] + dv
+        t0, t1 = self._times[i - 1], self._times[i]
+        f = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
+        p0, v0 = self._positions[i - 1], self._velocities[i - 1]
+        return (p0 + f * (self._positions[i] - p0) + dp,
+                v0 + f * (self._velocities[i] - v0) + dv)
 
     def fuse(self, axes: list[int], value: np.ndarray, var: float, t_meas: float,
              index: int, gate_sigma: float) -> Fusion:
@@ -96,7 +129,7 @@ class NavFilter:
         dp, dv = np.zeros(3), np.zeros(3)
         for axis, innovation, gain in zip(axes, innovations, gains, strict=True):
             dp[axis], dv[axis] = gain[0] * innovation, gain[1] * innovation
-        self._history = deque((t, p + dp, v + dv) for t, p, v in self._history)
+        self._offset = (self._offset[0] + dp, self._offset[1] + dv)
 
     def reset(self, axes: list[int], value: np.ndarray, var: float, index: int) -> np.ndarray:
         """Set position (index 0) or velocity (index 1) of `axes`; returns the step (new - old)
@@ -110,9 +143,9 @@ class NavFilter:
             self.cov[axis, :, index] = 0.0
             self.cov[axis, index, index] = var
         if index == 0:
-            self._history = deque((t, p + step, v) for t, p, v in self._history)
+            self._offset = (self._offset[0] + step, self._offset[1])
         else:
-            self._history = deque((t, p, v + step) for t, p, v in self._history)
+            self._offset = (self._offset[0], self._offset[1] + step)
         return step
 
     def variance(self, axis: int, index: int) -> float:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from sim.autopilot.dynamics import Dynamics
 from sim.autopilot.params import Release, configured_values
 from sim.autopilot.sensing import ImuNoise
 from sim.trajectory import Trajectory
@@ -36,7 +37,8 @@ class SimOptions:
     supports_origin_command: bool = True  # False: MAV_CMD_DO_SET_GLOBAL_ORIGIN is UNSUPPORTED
     mavlink1: bool = False  # frame what the autopilot sends as MAVLink 1 (a misconfigured port)
     reboot_downtime_s: float = 0.5  # silence while rebooting on MAV_CMD_PREFLIGHT_REBOOT
-    trajectory: Trajectory | None = None
+    trajectory: Trajectory | None = None  # the scripted (open-loop) vehicle's flight
+    dynamics: Dynamics | None = None  # a vehicle that flies on the model's own controllers
     imu_noise: ImuNoise = field(default_factory=ImuNoise)
     seed: int = 0
     absent: frozenset[str] = frozenset()  # sensor messages this vehicle has no sensor for

@@ -31,6 +31,7 @@ class Reading:
     rates: np.ndarray  # body, rad/s
     baro_alt: float
     baro_ground: float
+    accel_steps: np.ndarray | None = None  # (k, 3) NED accelerations of k equal sub-steps
 
 
 class Sensing:

@@ -21,6 +21,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from sim.autopilot.autopilot import AutopilotModel
 from sim.autopilot.copter import ArduCopterModel
+from sim.autopilot.dynamics import FlyingVehicle
 from sim.autopilot.options import DEFAULT_STREAMS, SimOptions, configured_options
 from sim.autopilot.ports import open_port
 from sim.autopilot.px4 import Px4Model
@@ -40,8 +41,16 @@ class Received:
     msg: object
 
 
-def make_model(options: SimOptions, vehicle: object, now: float) -> AutopilotModel:
-    """The firmware model for `options.flavour` ("ardupilot" or "px4")."""
+def make_model(options: SimOptions, vehicle: object | None, now: float) -> AutopilotModel:
+    """The firmware model for `options.flavour` ("ardupilot" or "px4") with its vehicle: the
+    one given, else a flying one (`options.dynamics`, ArduCopter only) or the scripted one
+    (`options.trajectory`, by default a slow hover)."""
+    if options.dynamics is not None and options.flavour != "ardupilot":
+        raise ValueError("SimOptions.dynamics: only the simulated ArduCopter flies (PX4's "
+                         "controllers are not modelled); use flavour='ardupilot'")
+    if vehicle is None:
+        vehicle = (FlyingVehicle(options.dynamics) if options.dynamics is not None
+                   else Vehicle(options.trajectory))
     model = {"ardupilot": ArduCopterModel, "px4": Px4Model}[options.flavour]
     return model(options, vehicle, now)
 
@@ -53,7 +62,7 @@ class SimAutopilot:
         self.opt = options or SimOptions()
         self.port = open_port(self.opt.port)
         self.url = self.port.url
-        self.model = make_model(self.opt, Vehicle(self.opt.trajectory), time.monotonic())
+        self.model = make_model(self.opt, None, time.monotonic())
         self.parser = ardupilotmega.MAVLink(None)
         self.parser.robust_parsing = True
         self.received: list[Received] = []

@@ -141,9 +141,9 @@ def sensor_message(mav: mavlink2.MAVLink, name: str, t: float, boot_ms: int,
     if name == "DISTANCE_SENSOR":
         tilt = np.cos(roll) * np.cos(pitch)
         distance = s.get("range", height / max(tilt, 0.1))  # a recorded one's, None: no echo
-        cm = (RANGEFINDER_MAX_CM if distance is None
-              else min(max(round(100 * distance), 0), MAX_RANGE_CM))
-        return mav.distance_sensor_encode(boot_ms, 20, RANGEFINDER_MAX_CM, cm,
+        low, high = s.get("range_limits_cm", (20, RANGEFINDER_MAX_CM))
+        cm = (high if distance is None else min(max(round(100 * distance), 0), MAX_RANGE_CM))
+        return mav.distance_sensor_encode(boot_ms, low, high, cm,
                                           mavlink2.MAV_DISTANCE_SENSOR_LASER, 0,
                                           mavlink2.MAV_SENSOR_ROTATION_PITCH_270, 0)
     if name == "SCALED_PRESSURE":

@@ -14,7 +14,6 @@ from scipy.spatial.transform import Rotation
 from sim.autopilot.autopilot import AutopilotModel
 from sim.autopilot.options import SimOptions
 from sim.autopilot.simulator import make_model
-from sim.autopilot.vehicle import Vehicle
 
 STEP_S = 0.005
 COMPANION = (1, 197)  # system, component (MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY)
@@ -27,16 +26,18 @@ class VirtualLink:
     def __init__(self, options: SimOptions, vehicle: object | None = None,
                  start: float = 1000.0) -> None:
         self.now = start
-        self.model: AutopilotModel = make_model(options, vehicle or Vehicle(options.trajectory),
-                                                start)
+        self.model: AutopilotModel = make_model(options, vehicle, start)
         self.mav = mavlink2.MAVLink(None, srcSystem=COMPANION[0], srcComponent=COMPANION[1])
         self._out_parser = ardupilotmega.MAVLink(None)
         self._in_parser = ardupilotmega.MAVLink(None)
         self.heard: list[tuple[float, object]] = []
 
-    def send(self, msg: object) -> None:
-        data = msg.pack(self.mav)
-        self.mav.seq = (self.mav.seq + 1) % 256
+    def send(self, msg: object, sender: mavlink2.MAVLink | None = None) -> None:
+        """Deliver `msg` from the companion, or from `sender` (e.g. a ground station's
+        MAVLink with its own system id)."""
+        mav = sender or self.mav
+        data = msg.pack(mav)
+        mav.seq = (mav.seq + 1) % 256
         for parsed in self._in_parser.parse_buffer(data) or []:
             self.model.receive(parsed, self.now)
         self._collect()

@@ -1,0 +1,119 @@
+"""`sdvl fly [MISSION]`: the simulated ArduCopter flies a mission on our estimate, with the
+camera rendered where it truly is, and the report says whether a real one would be ready.
+
+By default on a virtual clock (deterministic, sim/flight/loop.py); `--realtime` runs the real
+service against the simulated autopilot in its own process on the wall clock
+(sim/flight/realtime.py), for the latency on this machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from daemon.config import Config, load_config
+from daemon.run_command import setup_logging
+from sdvl.errors import InputError
+from sim.flight.flight_run import FlightRun, Timing
+from sim.flight.loop import ClosedLoop
+from sim.flight.mission import DEFAULT_MISSION, Mission, load_mission
+from sim.flight.report import flight_report, format_flight
+from sim.flight.runner import step_printer
+from sim.flight.scores import score
+from sim.flight.seeds import format_seed_table, summarize_flights
+from sim.render_command import parse_size
+from sim.replay.flight import SENSOR_STREAMS
+from sim.replay.seeds import parse_seeds
+
+DEFAULT_SIZE = "320x240"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of `sdvl fly`."""
+    parser.add_argument("mission", nargs="?", default=DEFAULT_MISSION,
+                        help="mission file (TOML, format: sim/flight/mission.py) or the name of "
+                             "a built-in one: default (take off to 3 m, LOITER 30 s, GUIDED 2 m "
+                             "square, land), survey, short")
+    seeds = parser.add_mutually_exclusive_group()
+    seeds.add_argument("--seed", type=int, default=0,
+                       help="world seed (its textures and layout, the autopilot's sensor "
+                            "noise); default 0")
+    seeds.add_argument("--seeds", default=None, metavar="LIST",
+                       help="fly once per seed ('0-19', '1,3,7'): a line per seed and the "
+                            "worst over them")
+    parser.add_argument("--without", action="append", default=[], choices=sorted(SENSOR_STREAMS),
+                        help="the autopilot does not stream this sensor to us (repeatable)")
+    parser.add_argument("--size", default=DEFAULT_SIZE, metavar="WxH",
+                        help=f"camera image size (default {DEFAULT_SIZE})")
+    parser.add_argument("--latency-ms", type=float, default=None, metavar="MS",
+                        help="capture-to-send latency of the companion in the virtual-clock "
+                             f"loop (default {1e3 * Timing().capture_to_send_s:g})")
+    parser.add_argument("--config", type=Path, default=None,
+                        help="service config (TOML, as for sdvl run); its link and camera are "
+                             "the simulation's, its mounting the world's")
+    parser.add_argument("--realtime", action="store_true",
+                        help="the real service on the wall clock against the simulated "
+                             "autopilot in its own process (measures this machine's latency)")
+    parser.add_argument("--load", type=int, default=0, metavar="N",
+                        help="with --realtime: N busy processes beside it (a loaded machine)")
+    parser.add_argument("--plot", type=Path, default=None, metavar="OUT.png",
+                        help="planned and flown path, the autopilot's estimate and ours")
+    parser.add_argument("--json", action="store_true",
+                        help="one JSON object (keys: sim/flight/report.py KEYS)")
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress lines on stderr")
+    parser.add_argument("--log-level", default="warning",
+                        choices=("debug", "info", "warning", "error"),
+                        help="log level of the service's parts on stderr (default warning)")
+
+
+def fly(mission: Mission, config: Config, seed: int, args: argparse.Namespace) -> FlightRun:
+    """One flight of `mission` as the arguments say."""
+    size = parse_size(args.size)
+    without = tuple(args.without)
+    prefix = None if args.quiet else f"fly {mission.name} seed {seed}"
+    if args.realtime:
+        from sim.flight.realtime import fly_realtime
+
+        return fly_realtime(mission, config, seed, size, without, args.load, prefix)
+    timing = Timing() if args.latency_ms is None else Timing(
+        capture_to_send_s=args.latency_ms / 1e3)
+    return ClosedLoop(mission, config, seed, size, without, timing,
+                      on_step=prefix and step_printer(prefix)).run()
+
+
+def run(args: argparse.Namespace) -> int:
+    """Fly, report, plot."""
+    if args.load and not args.realtime:
+        raise InputError("--load loads the machine for a --realtime flight; add --realtime")
+    if args.latency_ms is not None and (args.realtime or args.latency_ms < 0):
+        raise InputError("--latency-ms is the virtual-clock loop's latency (>= 0); --realtime "
+                         "measures its own")
+    mission = load_mission(args.mission)
+    config = load_config(args.config) if args.config else Config()
+    setup_logging(args.log_level)
+    if args.seeds is not None:
+        if args.plot is not None:
+            raise InputError("--plot draws one flight: use --seed N with it, not --seeds")
+        return _seeds(mission, config, parse_seeds(args.seeds), args)
+    flight = fly(mission, config, args.seed, args)
+    report = flight_report(flight, score(flight))
+    if args.plot is not None:
+        from sim.flight.plot import plot_flight
+
+        plot_flight(flight, args.plot, f"sdvl fly {mission.name}, seed {args.seed}")
+    print(json.dumps(report) if args.json else format_flight(report, len(mission.steps)))
+    return 0
+
+
+def _seeds(mission: Mission, config: Config, seeds: list[int],
+           args: argparse.Namespace) -> int:
+    reports = [flight_report(flight, score(flight))
+               for flight in (fly(mission, config, seed, args) for seed in seeds)]
+    summary = summarize_flights(reports)
+    if args.json:
+        print(json.dumps({"seeds": seeds, "runs": reports, "summary": summary}))
+    else:
+        print(format_seed_table(seeds, reports, summary))
+    return 0

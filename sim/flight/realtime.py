@@ -1,0 +1,208 @@
+"""`sdvl fly --realtime`: the loaded-machine check. The real service (`Service`, as `sdvl run`
+builds it: capture and tracking threads, mapping thread, asyncio link) flies the mission against
+the simulated ArduCopter in its own process on the wall clock (CLOCK_MONOTONIC), over UDP, so
+threads, the link and the machine's load are real and the latency is measured, not configured.
+
+The camera is a frame source that, at the camera rate, reads the vehicle's true pose from the
+autopilot's process (shared memory), stamps the frame then (exposure) and renders it; the
+rendering time is the camera's readout delay. `--load N` starts N busy processes beside it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import multiprocessing
+import multiprocessing.connection
+import select
+import time
+from collections.abc import Callable
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega
+
+from daemon.camera import Pacer
+from daemon.config import Config, replace
+from daemon.frames import Frame
+from daemon.run_command import tracker_factory
+from daemon.service import Service
+from sim.autopilot.ports import UdpPort
+from sim.flight.autopilot_side import AutopilotSide
+from sim.flight.flight_run import FlightRun, Timing
+from sim.flight.loop import flight_config
+from sim.flight.mission import Mission
+from sim.flight.runner import step_printer
+from sim.flight.world import FlightWorld
+from sim.replay.autopilot_process import VisionMessage
+from sim.replay.recording import Recorder
+
+VISION = ("ODOMETRY", "VISION_POSITION_ESTIMATE", "VISION_SPEED_ESTIMATE")
+WARMUP_FRAMES = 30  # enough for the map to start, so the mapping kernels are compiled too
+WARMUP_HEIGHT_M = 3.0
+SELECT_S = 0.002
+POLL_S = 0.1
+
+
+class TruthShare:
+    """The vehicle's true pose (T_ned_body) and its time (s since boot), shared between
+    processes."""
+
+    def __init__(self, array: object | None = None) -> None:
+        self.array = multiprocessing.Array("d", 17) if array is None else array
+
+    def write(self, t: float, T: np.ndarray) -> None:
+        with self.array.get_lock():
+            self.array[0] = t
+            self.array[1:] = T.ravel()
+
+    def read(self) -> tuple[float, np.ndarray]:
+        with self.array.get_lock():
+            values = np.array(self.array[:])
+        return float(values[0]), values[1:].reshape(4, 4)
+
+
+class RenderedCamera:
+    """A live FrameSource at `fps`: the world rendered at the vehicle's true pose (see the
+    module doc); t_source is seconds since the autopilot booted."""
+
+    live, finite = True, False
+    name = "rendered world"
+
+    def __init__(self, world: FlightWorld, truth: TruthShare, fps: float, boot: float):
+        self.world, self.truth, self.period, self.boot = world, truth, 1.0 / fps, boot
+        self.camera = world.camera
+        self.pacer = Pacer()
+        self.offered = 0
+
+    def open(self) -> None:
+        """Nothing to open: the world is in memory."""
+
+    def read(self) -> tuple[float, float, np.ndarray]:
+        """The next frame: exposed (the pose read) when it is due, then rendered."""
+        self.offered += 1
+        t_capture = self.pacer.wait(self.offered * self.period)
+        _, T_ned_body = self.truth.read()
+        t = t_capture - self.boot
+        return t, t_capture, self.world.image(self.offered, t, T_ned_body)
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+def warm_up(world: FlightWorld, make_tracker: Callable[[Frame], object]) -> None:
+    """Render and track a short sideways pass at 3 m so the renderer's and the tracker's
+    kernels are compiled before the flight's clock starts (a drone's service is up first)."""
+    tracker = None
+    try:
+        for i in range(WARMUP_FRAMES):
+            T = np.eye(4)
+            T[:3, 3] = (0.0, 0.02 * i, -WARMUP_HEIGHT_M)
+            image = world.image(i, i / 30.0, T)
+            tracker = tracker or make_tracker(Frame(i, i / 30.0, time.monotonic(), image))
+            tracker.process(image, i / 30.0)
+    finally:
+        if tracker is not None:
+            tracker.close()
+
+
+def _vision(parser: object, data: bytes, arrival: float) -> list[VisionMessage]:
+    return [VisionMessage(m.get_type(), arrival, m.to_dict())
+            for m in parser.parse_buffer(data) or [] if m.get_type() in VISION]
+
+
+def _autopilot_process(conn: multiprocessing.connection.Connection, mission: Mission,
+                       seed: int, size: tuple[int, int] | None, without: tuple[str, ...],
+                       truth_array: object, timing: Timing, progress: str | None) -> None:
+    """The child: the autopilot's end on the wall clock, over UDP; its record on exit."""
+    world = FlightWorld.of_preset(mission.world, seed, size)
+    truth = TruthShare(truth_array)
+    port = UdpPort()
+    conn.send(port.url)
+    conn.recv()  # the service is built: power on
+    boot = time.monotonic()
+    side = AutopilotSide(mission, world, seed, timing, without, 0.0,
+                         progress and step_printer(progress))
+    conn.send(boot)
+    parser = ardupilotmega.MAVLink(None)
+    parser.robust_parsing = True
+    vision: list[VisionMessage] = []
+    try:
+        while not side.done and not conn.poll():
+            with contextlib.suppress(OSError, ValueError):
+                select.select([port], [], [], SELECT_S)
+            data, now = port.read(), time.monotonic()
+            if data:
+                side.from_companion(data, now - boot)
+                vision += _vision(parser, data, now)
+            for out in side.step(now - boot):
+                port.write(out)
+            truth.write(side.now, side.T_ned_body)
+    finally:
+        port.close()
+    conn.send({"steps": side.runner.results, "record": side.model.record,
+               "truth": side.truth_trajectory(), "compass": side.compass,
+               "viso_delay_ms": side.viso_delay_ms(), "vision": vision})
+
+
+def _busy() -> None:
+    """A process that only burns CPU (the loaded-machine check)."""
+    while True:
+        pass
+
+
+async def _serve(service: Service, conn: multiprocessing.connection.Connection) -> None:
+    """Run the service until the autopilot's process says the mission has ended."""
+    task = asyncio.create_task(service.run())
+    while not task.done():
+        if conn.poll():
+            service.stop()
+        await asyncio.wait({task}, timeout=POLL_S)
+    task.result()
+
+
+def fly_realtime(mission: Mission, config: Config, seed: int, size: tuple[int, int] | None,
+                 without: tuple[str, ...], load: int = 0,
+                 progress: str | None = None) -> FlightRun:
+    """One real-time flight (see the module doc); `progress`: prefix of the step lines on
+    stderr (None: none)."""
+    world = FlightWorld.of_preset(mission.world, seed, size)
+    config = replace(flight_config(config, world),
+                     camera={"source": "testpattern", "calibration": ""})
+    make_tracker = tracker_factory(config, world.camera)
+    warm_up(world, make_tracker)
+    timing, truth = Timing(), TruthShare()
+    conn, child = multiprocessing.Pipe()
+    process = multiprocessing.Process(target=_autopilot_process, name="sim-autopilot",
+                                      args=(child, mission, seed, size, without, truth.array,
+                                            timing, progress), daemon=True)
+    process.start()
+    busy = [multiprocessing.Process(target=_busy, daemon=True) for _ in range(load)]
+    for p in busy:
+        p.start()
+    try:
+        service_config = replace(config, mavlink={"link": conn.recv()})
+        recorder = Recorder()
+        conn.send("power on")
+        boot = conn.recv()
+        source = RenderedCamera(world, truth, timing.fps, boot)
+        service = Service(service_config, source, make_tracker, on_tracked=recorder)
+        cpu0, wall0 = time.process_time(), time.perf_counter()
+        asyncio.run(_serve(service, conn))
+        wall_s, cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0
+        if not conn.poll():
+            conn.send("stop")
+        out = conn.recv()
+    finally:
+        for p in busy:
+            p.terminate()
+            p.join()
+        process.join(5.0)
+        if process.is_alive():
+            process.terminate()
+    return FlightRun(mission, seed, without, dataclasses.replace(timing, our_clock_s=boot),
+                     out["truth"],
+                     out["steps"], out["vision"], recorder.rows, out["record"],
+                     out["viso_delay_ms"], out["compass"], realtime=True, wall_s=wall_s,
+                     cpu_s=cpu_s, load=load, offered=source.offered)
+
