@@ -107,8 +107,8 @@ def test_fresh_ardupilot_lists_every_setting_and_apply_reboot_makes_it_ok(capsys
 
 
 def test_px4_apply_and_reboot(capsys):
-    with SimAutopilot(configured_options(flavour="px4", port="tcp",
-                                         reboot_downtime_s=2.0)) as sim:
+    with SimAutopilot(configured_options(flavour="px4", port="tcp", reboot_downtime_s=2.0,
+                                         params={"EKF2_EV_CTRL": 15})) as sim:
         code, out = check(sim, capsys, "--latency-ms", "35", "--apply", "--reboot")
     assert code == 0, out
     assert "set EKF2_EV_CTRL = 7, read back 7" in out
