@@ -96,7 +96,7 @@ class TrackingThread(threading.Thread):
             self.error = exc
         finally:
             self.gate.done(math.inf)  # no more handoffs: mapping finishes its queue unheld
-            self._close_tracker()
+            self.close_tracker()
             self.on_end()
 
     def _loop(self) -> None:
@@ -108,14 +108,15 @@ class TrackingThread(threading.Thread):
                 if self.slot.closed:
                     return
                 continue
-            if self.tracker is None:
-                self.tracker = self.make_tracker(frame)
-            tracked = self._track(frame)
+            tracked = self.step(frame)
             if tracked is not None:
                 self.deliver(tracked)
 
-    def _track(self, frame: Frame) -> TrackedFrame | None:
-        """Track one frame and estimate; None when the tracker failed on it."""
+    def step(self, frame: Frame) -> TrackedFrame | None:
+        """Track one frame and estimate, on the caller's thread (the loop's body; a lockstep
+        replay calls it directly); None when the tracker failed on it."""
+        if self.tracker is None:
+            self.tracker = self.make_tracker(frame)
         self._gate_mapping()
         t_start = self._busy_since = time.monotonic()
         start = time.perf_counter()
@@ -123,7 +124,7 @@ class TrackingThread(threading.Thread):
             result = self.tracker.process(frame.image, frame.t_source)
         except Exception as exc:
             self._failed("tracker", exc)
-            self._close_tracker()  # rebuilt on the next frame: a new map
+            self.close_tracker()  # rebuilt on the next frame: a new map
             return None
         finally:
             self._busy_since = None
@@ -150,7 +151,8 @@ class TrackingThread(threading.Thread):
             raise RuntimeError(f"{where} failed on {self._failed_in_row} frames in a row, "
                                f"the last with {type(exc).__name__}: {exc}") from exc
 
-    def _close_tracker(self) -> None:
+    def close_tracker(self) -> None:
+        """Close the tracker (a new one is built for the next frame)."""
         tracker, self.tracker = self.tracker, None
         if tracker is None:
             return

@@ -22,8 +22,10 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from daemon.config import Config, replace
+from daemon.frames import Frame, LatestSlot
 from daemon.fusion.estimator import FusionEstimator
 from daemon.messages import odometry
+from daemon.tracking import TrackingThread
 from sim.autopilot.vehicle import Vehicle, sensor_message
 from sim.replay.autopilot_process import VisionMessage, with_recordings
 from sim.replay.flight import body_imu, resampled, sensor_streams
@@ -101,33 +103,33 @@ def run_lockstep(sequence: object, config: Config, frames: FirstFrames, flight: 
     mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=197)
     rows: list[dict] = []
     received: list[VisionMessage] = []
-    tracker, k = None, 0
+    k = 0
+    # the service's own per-frame step, on this thread (never started: nothing is delivered);
+    # the autopilot's messages of the frame's processing time go first, on_frame takes them in
+    tracking = TrackingThread(LatestSlot(), make_tracker, estimator, deliver=lambda _: None,
+                              on_end=lambda: None)
     cpu0, wall0 = time.process_time(), time.perf_counter()
-    from daemon.frames import Frame
-
     try:
         for index, (t, image) in enumerate(frames.frames()):
             t_capture = t + OUR_CLOCK
-            tracker = tracker or make_tracker(Frame(index, t, t_capture, image))
-            start = time.perf_counter()
-            result = tracker.process(image, t)
-            track_s = time.perf_counter() - start
             while k < len(messages) and messages[k][0] <= t_capture + RESULT_DELAY_S:
                 clock[0] = messages[k][0]
                 estimator.on_autopilot_message(messages[k][1])
                 k += 1
             clock[0] = t_capture + RESULT_DELAY_S
-            estimate = estimator.on_frame(result, t_capture)
+            tracked = tracking.step(Frame(index, t, t_capture, image))
+            if tracked is None:
+                continue
+            result, estimate = tracked.result, tracked.estimate
             if estimate is not None:
                 msg = odometry(mav, estimate)
                 received.append(VisionMessage("ODOMETRY", clock[0], msg.to_dict()))
-            rows.append({"t_capture": t_capture, "t_source": t, "track": track_s,
+            rows.append({"t_capture": t_capture, "t_source": t, "track": tracked.track_s,
                          "sent": estimate is not None, "send": None, "quality": result.quality,
                          "has_pose": result.has_pose, "new_segment": result.new_segment})
             show.update(index + 1, index + 1, sum(r["has_pose"] for r in rows))
     finally:
-        if tracker is not None:
-            tracker.close()
+        tracking.close_tracker()
         show.close()
     return ReplayRun(
         name=sequence.name, realtime=False, fusion=True, offered=len(rows), rows=rows,
