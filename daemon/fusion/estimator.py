@@ -63,6 +63,7 @@ from vo.result import Quality
 
 log = logging.getLogger("sdvl.fusion")
 INBOX_LIMIT = 20_000
+BARO_INTERVAL_S = 0.075  # correlated error: at most ~13 Hz fused (a 10 Hz stream whole, 50 Hz not)
 UNDECIDED_START_S = 2.0  # start moving (velocity unknown) if rest is still undecided by then
 HEIGHT_FRESH_S = 1.0  # the autopilot's own height this close to the start sets ours
 
@@ -85,6 +86,7 @@ class FusionEstimator:
         self.timeline = Timeline(cfg.history_s)
         self.sources: dict[str, str] = {}  # "imu"/"baro" -> the message type fused
         self._choices: dict[str, SourceChoice] = {}
+        self._last_baro_t = -math.inf  # time of the last barometer sample fused
         self.imu_gate = ImuGate(report)
         self.repeats = Repeats()
         self.dropped_stamps = 0
@@ -268,9 +270,14 @@ class FusionEstimator:
     def _add_stream(self, kind: str, sample: Imu | Baro, priority: dict[str, int]) -> None:
         """Fuse one stream of a kind: the preferred one that streams steadily (source_choice)."""
         choice = self._choices.setdefault(kind, SourceChoice(kind, priority))
-        if choice.offer(sample.source, sample.t):
-            self.sources[kind] = sample.source
-            self.timeline.add(sample.t, kind, sample)
+        if not choice.offer(sample.source, sample.t):
+            return
+        self.sources[kind] = sample.source
+        if kind == "baro":
+            if abs(sample.t - self._last_baro_t) < BARO_INTERVAL_S:
+                return
+            self._last_baro_t = sample.t
+        self.timeline.add(sample.t, kind, sample)
 
     # --- the filter ---------------------------------------------------------------------------
 
