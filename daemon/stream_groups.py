@@ -94,7 +94,10 @@ NEEDS: dict[str, tuple[Need, ...]] = {
                   Need("barometer", "SCALED_PRESSURE", BARO_MESSAGES, 10.0, 2.0),
                   _RANGE, _LOCAL),
     "px4": (_ATTITUDE, Need("IMU", "HIGHRES_IMU", IMU_MESSAGES, 50.0, 20.0),
-            Need("barometer", "ALTITUDE", BARO_MESSAGES, 10.0, 2.0), _RANGE, _LOCAL),
+            Need("barometer", "ALTITUDE", BARO_MESSAGES, 10.0, 2.0), _RANGE, _LOCAL,
+            # PX4's land detector: on the ground the fusion holds the vehicle still (ArduPilot
+            # says it in HEARTBEAT's system status)
+            Need("land detector", "EXTENDED_SYS_STATE", ("EXTENDED_SYS_STATE",), 5.0, 1.0)),
 }
 
 

@@ -24,7 +24,7 @@ from sim.autopilot import SimAutopilot, SimOptions
 
 MSG_ID = {name: getattr(mavlink2, f"MAVLINK_MSG_ID_{name}")
           for name in ("ATTITUDE", "RAW_IMU", "SCALED_PRESSURE", "DISTANCE_SENSOR",
-                       "LOCAL_POSITION_NED", "HIGHRES_IMU", "ALTITUDE")}
+                       "LOCAL_POSITION_NED", "HIGHRES_IMU", "ALTITUDE", "EXTENDED_SYS_STATE")}
 NAME_OF = {v: k for k, v in MSG_ID.items()}
 INT8, REAL32 = mavlink2.MAV_PARAM_TYPE_INT8, mavlink2.MAV_PARAM_TYPE_REAL32
 
@@ -82,7 +82,8 @@ class Autopilot:
                  "SCALED_PRESSURE": lambda: self.mav.scaled_pressure_encode(0, 1000, 0, 2000),
                  "HIGHRES_IMU": lambda: self.mav.highres_imu_encode(
                      0, 0, 0, -9.8, 0, 0, 0, 0, 0, 0, 1000, 0, 0, 0, 0b1000000111),
-                 "ALTITUDE": lambda: self.mav.altitude_encode(0, 1, 1, 1, 1, 1, 1)}[name]
+                 "ALTITUDE": lambda: self.mav.altitude_encode(0, 1, 1, 1, 1, 1, 1),
+                 "EXTENDED_SYS_STATE": lambda: self.mav.extended_sys_state_encode(0, 1)}[name]
         return self.wire(build())
 
 
@@ -148,11 +149,11 @@ def test_refused_ardupilot_is_asked_for_the_stream_group():
 def test_silent_px4_is_asked_twice_then_left_to_its_mode():
     codec = Codec()
     keeper = StreamKeeper(codec, Watch(flavour="px4"), usb=False)
-    run(keeper, Autopilot("px4"), 0.0, 5 * 2 * ACK_TIMEOUT_S + 0.5)
+    run(keeper, Autopilot("px4"), 0.0, 6 * 2 * ACK_TIMEOUT_S + 0.5)
     asks = codec.of("COMMAND_LONG", mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL)
     names = [NAME_OF[int(c.param1)] for c in asks]
     assert names == [n for n in ("ATTITUDE", "HIGHRES_IMU", "ALTITUDE", "DISTANCE_SENSOR",
-                                 "LOCAL_POSITION_NED") for _ in range(2)]
+                                 "LOCAL_POSITION_NED", "EXTENDED_SYS_STATE") for _ in range(2)]
     assert not codec.of("REQUEST_DATA_STREAM")  # PX4 does not implement it
     assert keeper.statuses["IMU"].answer.value == "no answer"
     assert "MAV_n_MODE" in keeper.statuses["IMU"].method
@@ -200,7 +201,7 @@ def test_missing_px4_imu_names_the_instance_mode():
     codec, reports, autopilot = Codec(), [], Autopilot("px4")
     keeper = StreamKeeper(codec, Watch(flavour="px4"), usb=False,
                           report=lambda *a: reports.append(a))
-    streams = {"ATTITUDE": 50, "ALTITUDE": 10}
+    streams = {"ATTITUDE": 50, "ALTITUDE": 10, "EXTENDED_SYS_STATE": 5}
     t = run(keeper, autopilot, 0.0, SETTLE_S + 0.5, accept_all, streams)
     answer_params(keeper, autopilot, {"MAV_0_MODE": 0, "MAV_0_CONFIG": 0, "MAV_1_MODE": 7,
                                       "MAV_1_CONFIG": 102}, t)

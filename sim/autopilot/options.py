@@ -14,7 +14,7 @@ from sim.trajectory import Trajectory
 DEFAULT_STREAMS = {"ardupilot": {"ATTITUDE": 20, "SCALED_IMU": 50, "DISTANCE_SENSOR": 10,
                                  "SCALED_PRESSURE": 10},
                    "px4": {"ATTITUDE": 20, "HIGHRES_IMU": 50, "DISTANCE_SENSOR": 10,
-                           "ALTITUDE": 10}}
+                           "ALTITUDE": 10, "EXTENDED_SYS_STATE": 5}}
 
 
 @dataclass

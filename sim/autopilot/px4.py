@@ -139,6 +139,7 @@ class Px4Model(AutopilotModel):
         self.nav = NAV_MODES[0]
         self._boot_height: float | None = None
         self._last_baro = 0.0
+        self._airborne = False  # the land detector's verdict since arming
         if self.opt.heartbeat_hz is not None:
             self.schedule.set("HEARTBEAT", 1.0 / self.opt.heartbeat_hz
                               if self.opt.heartbeat_hz > 0 else 0.0)
@@ -187,7 +188,22 @@ class Px4Model(AutopilotModel):
         if name == "LOCAL_POSITION_NED" and self.ekf.started:
             p, v = self.ekf.filter.position, self.ekf.filter.velocity
             return self.mav.local_position_ned_encode(int(self.uptime(now) * 1000), *p, *v)
+        if name == "EXTENDED_SYS_STATE":
+            return self.mav.extended_sys_state_encode(mavlink2.MAV_VTOL_STATE_UNDEFINED,
+                                                      self._landed_state(now))
         return None
+
+    def _landed_state(self, now: float) -> int:
+        """MulticopterLandDetector, simply: landed while disarmed, and once armed until the
+        vehicle moves faster than LNDMC_Z_VEL_MAX (0.5 m/s) or LNDMC_XY_VEL_MAX (1.5 m/s);
+        then in the air until it is disarmed."""
+        if not self.armed:
+            self._airborne = False
+        elif not self._airborne:
+            v = self.vehicle.state(self.uptime(now))["velocity"]
+            self._airborne = abs(v[2]) > 0.5 or float(np.hypot(v[0], v[1])) > 1.5
+        return (mavlink2.MAV_LANDED_STATE_IN_AIR if self._airborne
+                else mavlink2.MAV_LANDED_STATE_ON_GROUND)
 
     def timesync_reply(self, msg: object, now: float) -> None:
         """MavlinkTimesync: replies update the offset filter."""
