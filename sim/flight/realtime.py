@@ -34,7 +34,7 @@ from sim.flight.loop import flight_config
 from sim.flight.mission import Mission
 from sim.flight.runner import step_printer
 from sim.flight.world import FlightWorld
-from sim.replay.autopilot_process import VisionMessage
+from sim.replay.autopilot_process import START_METHOD, VisionMessage
 from sim.replay.recording import Recorder
 
 VISION = ("ODOMETRY", "VISION_POSITION_ESTIMATE", "VISION_SPEED_ESTIMATE")
@@ -49,7 +49,8 @@ class TruthShare:
     processes."""
 
     def __init__(self, array: object | None = None) -> None:
-        self.array = multiprocessing.Array("d", 17) if array is None else array
+        self.array = (multiprocessing.get_context(START_METHOD).Array("d", 17) if array is None
+                      else array)
 
     def write(self, t: float, T: np.ndarray) -> None:
         with self.array.get_lock():
@@ -172,12 +173,13 @@ def fly_realtime(mission: Mission, config: Config, seed: int, size: tuple[int, i
     make_tracker = tracker_factory(config, world.camera)
     warm_up(world, make_tracker)
     timing, truth = Timing(), TruthShare()
-    conn, child = multiprocessing.Pipe()
-    process = multiprocessing.Process(target=_autopilot_process, name="sim-autopilot",
+    ctx = multiprocessing.get_context(START_METHOD)
+    conn, child = ctx.Pipe()
+    process = ctx.Process(target=_autopilot_process, name="sim-autopilot",
                                       args=(child, mission, seed, size, without, truth.array,
                                             timing, progress), daemon=True)
     process.start()
-    busy = [multiprocessing.Process(target=_busy, daemon=True) for _ in range(load)]
+    busy = [ctx.Process(target=_busy, daemon=True) for _ in range(load)]
     for p in busy:
         p.start()
     try:

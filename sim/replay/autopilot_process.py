@@ -27,6 +27,10 @@ from sim.replay.pilot import Pilot
 from sim.sequence import ImuSamples
 from sim.trajectory import Trajectory
 
+# a fork would copy locks this process's other threads hold (numba compiling a kernel) and
+# the child could wait on them forever; the fork server is a fresh single-threaded process
+START_METHOD = "forkserver"
+
 MAX_LEAD_S = 0.1
 PAD_S = 1.0  # the trajectory is held this long at both ends, so its derivatives stay defined
 PILOT_TICK_S = 0.05
@@ -142,9 +146,10 @@ class AutopilotProcess:
     def __init__(self, options: SimOptions | None = None,
                  trajectory: Trajectory | None = None, imu: ImuSamples | None = None,
                  sensors: SensorSamples | None = None, arm: bool = False):
-        self.clock = multiprocessing.Array("d", [math.nan, math.nan])
-        self._conn, child = multiprocessing.Pipe()
-        self._process = multiprocessing.Process(
+        ctx = multiprocessing.get_context(START_METHOD)
+        self.clock = ctx.Array("d", [math.nan, math.nan])
+        self._conn, child = ctx.Pipe()
+        self._process = ctx.Process(
             target=_serve, args=(child, options or configured_options(), trajectory, (imu, sensors),
                                  self.clock, arm),
             name="sim-autopilot", daemon=True)
