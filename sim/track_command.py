@@ -149,7 +149,7 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
                                                                      *slow_mapping).offer
     log = TrackLog(frame_rows)
     pace = camera_rate() if paced else lambda t: None
-    bar = progress_bar("track", max_frames or len(sequence), enabled=not quiet)
+    bar = progress_bar("track", min(max_frames or len(sequence), len(sequence)), enabled=not quiet)
     try:
         for t, image in sequence.frames(max_frames):
             pace(t)

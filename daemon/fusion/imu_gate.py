@@ -36,9 +36,10 @@ class _Stream:
     """One stream's recent samples and verdicts."""
 
     recent: deque = field(default_factory=lambda: deque(maxlen=WINDOW))
-    verdicts: deque = field(default_factory=deque)  # (t, passed)
-    dropped_since: float | None = None
-    clean_since: float | None = None
+    verdicts: deque = field(default_factory=deque)  # (t, passed) over DROP_WINDOW_S
+    failed: int = 0  # verdicts that did not pass
+    dropped: bool = False
+    clean_since: float | None = None  # while dropped: the first of the passes in a row
 
 
 class ImuGate:
@@ -71,20 +72,23 @@ class ImuGate:
     def _healthy(self, source: str, s: _Stream, t: float, passed: bool) -> bool:
         """Keep the verdicts of the last DROP_WINDOW_S; drop or take back the stream."""
         s.verdicts.append((t, passed))
+        s.failed += not passed
         while s.verdicts and s.verdicts[0][0] < t - DROP_WINDOW_S:
-            s.verdicts.popleft()
-        failed = sum(not ok for _, ok in s.verdicts)
-        if s.dropped_since is None:
-            if failed > DROP_SHARE * len(s.verdicts) and len(s.verdicts) >= WINDOW:
-                s.dropped_since, s.clean_since = t, None
-                self._say(f"IMU {source} dropped: {failed} of {len(s.verdicts)} samples "
+            s.failed -= not s.verdicts.popleft()[1]
+        if not s.dropped:
+            if s.failed > DROP_SHARE * len(s.verdicts) and len(s.verdicts) >= WINDOW:
+                s.dropped, s.clean_since = True, None
+                self._say(f"IMU {source} dropped: {s.failed} of {len(s.verdicts)} samples "
                           f"inconsistent in {DROP_WINDOW_S:g} s (check the autopilot's IMU)")
-            return s.dropped_since is None
-        s.clean_since = (s.clean_since or t) if passed else None
+            return not s.dropped
+        if not passed:
+            s.clean_since = None
+        elif s.clean_since is None:
+            s.clean_since = t
         if s.clean_since is not None and t - s.clean_since >= READMIT_S:
-            s.dropped_since = None
+            s.dropped = False
             self._say(f"IMU {source} used again: consistent for {READMIT_S:g} s")
-        return s.dropped_since is None
+        return not s.dropped
 
     def _say(self, text: str) -> None:
         log.warning("fusion: %s", text)
