@@ -19,7 +19,7 @@ import numpy as np
 
 from calib.camera import CameraModel
 from sdvl.tables import dataclass_from_table, read_toml
-from vo.result import FrameResult, Quality
+from vo.result import FrameResult, Quality, ms_since
 from vo.rigid_ransac import motion_covariance, ransac_rigid
 from vo.se3 import adjoint, orthonormalized
 
@@ -106,7 +106,7 @@ class RgbdOdometry:
         """SIFT keypoints with a trustworthy depth, as 3D points."""
         t0 = time.perf_counter()
         keypoints, descriptors = self.sift.detectAndCompute(image, None)
-        timings["features"] = (time.perf_counter() - t0) * 1e3
+        timings["features"] = ms_since(t0)
         if not keypoints:
             return _Keyed(np.zeros((0, 128), np.float32), np.zeros((0, 3)))
         px = np.array([k.pt for k in keypoints])

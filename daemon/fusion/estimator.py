@@ -151,10 +151,7 @@ class FusionEstimator:
                 reset_counter=self.reset_counter)
             if estimate is None or horizontal_std(carried) > self.cfg.publish_max_std_m:
                 return None
-            if self.continuity.jumped(estimate):
-                self._bump_reset_counter()
-                estimate = dataclasses.replace(estimate, reset_counter=self.reset_counter)
-            return estimate
+            return self._continuous(estimate)
 
     def _on_frame(self, result: object, t_capture: float) -> VisionEstimate | None:
         self._drain()
@@ -196,10 +193,7 @@ class FusionEstimator:
             f, cfg, R_l_b=R_l_b, rot_cov=rot_cov,
             rates=att.rates if att is not None else np.zeros(3), t_capture=t_capture,
             t_source=float(result.t), state=result.quality, reset_counter=self.reset_counter)
-        if estimate is not None and self.continuity.jumped(estimate):
-            self._bump_reset_counter()
-            estimate = dataclasses.replace(estimate, reset_counter=self.reset_counter)
-        return estimate
+        return None if estimate is None else self._continuous(estimate)
 
     def _known(self, t: float) -> bool:
         """Whether the filter knows where the vehicle is well enough to say so: its horizontal
@@ -222,9 +216,13 @@ class FusionEstimator:
 
     # --- inputs -------------------------------------------------------------------------------
 
-    def _bump_reset_counter(self) -> None:
+    def _continuous(self, estimate: VisionEstimate) -> VisionEstimate:
+        """The estimate, with a new reset_counter when it jumped from the last one sent."""
+        if not self.continuity.jumped(estimate):
+            return estimate
         self.reset_counter = (self.reset_counter + 1) % 256
         log.info("fusion: the estimate jumped, reset_counter %d", self.reset_counter)
+        return dataclasses.replace(estimate, reset_counter=self.reset_counter)
 
     def _drain(self) -> None:
         """Autopilot messages -> attitude track and timeline events on our clock."""

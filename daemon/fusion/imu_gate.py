@@ -21,11 +21,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vo.pose_optimizer import MAD_TO_SIGMA
+
 log = logging.getLogger("sdvl.fusion")
 WINDOW = 7
 SPIKE_FLOOR = 20.0  # m/s^2, 2 g: beyond a filtered IMU's vibration and a step of thrust
 SPIKE_SIGMAS = 6.0
-MAD_TO_SIGMA = 1.4826
 DROP_WINDOW_S = 2.0
 DROP_SHARE = 0.2  # a healthy stream fails almost none: vibration stays under the floor
 READMIT_S = 10.0

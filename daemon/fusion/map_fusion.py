@@ -130,7 +130,7 @@ class MapFusion:
             return  # once converged the fit is not used: pairing on would grow without bound
         f.climb.add(float((f.R_nom @ (frame.p_w - f.p_w0))[2]), *self.readings.baro)
         std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
-        if att is None or f.converged or (std <= cfg.coarse_scale_std and self.imu_fresh(t)):
+        if att is None or (std <= cfg.coarse_scale_std and self.imu_fresh(t)):
             return
         fit = f.climb.fit(cfg.climb_scale_min_m, cfg.baro_std_m)
         if fit is not None:  # the map's own scale wanders over the climb (its walk, halved)

@@ -41,6 +41,31 @@ class _Reported:
             self.value = (t, flag)
 
 
+class _Recent:
+    """Samples (time, row of floats) of the last seconds, with the rows between two times as
+    one array."""
+
+    def __init__(self, width: int):
+        self.times: deque[float] = deque()
+        self.rows: deque[np.ndarray] = deque()
+        self.width = width
+
+    def add(self, t: float, row: np.ndarray, keep_s: float) -> None:
+        self.times.append(t)
+        self.rows.append(row)
+        while self.times and self.times[0] < t - keep_s:
+            self.times.popleft()
+            self.rows.popleft()
+
+    def between(self, start: float, end: float, closed: bool = True) -> np.ndarray:
+        """The rows stamped in [start, end] ([start, end) unless `closed`), shape (n, width)."""
+        if not self.times:
+            return np.empty((0, self.width))
+        times = np.asarray(self.times)
+        inside = (times >= start) & ((times <= end) if closed else (times < end))
+        return np.asarray(self.rows)[inside]
+
+
 class RestDetector:
     """Keeps the autopilot's flight state and the recent IMU and gyro samples (our clock)."""
 
@@ -48,8 +73,8 @@ class RestDetector:
         self.cfg = cfg
         self._landed = _Reported(still_when=True)  # on the ground
         self._armed = _Reported(still_when=False)
-        self.accel: deque[tuple[float, np.ndarray]] = deque()
-        self.rates: deque[tuple[float, float]] = deque()  # (time, |rate|)
+        self.accel = _Recent(4)  # specific force x y z and its norm
+        self.rates = _Recent(1)  # |body rate|
 
     def on_landed(self, t: float, on_ground: bool | None) -> None:
         """The autopilot's land detector (None: it cannot tell now; the last word stands until
@@ -63,17 +88,11 @@ class RestDetector:
 
     def on_imu(self, t: float, accel: np.ndarray) -> None:
         """A specific-force sample (body FRD, m/s^2)."""
-        self.accel.append((t, accel))
-        self._forget(self.accel, t)
+        self.accel.add(t, np.append(accel, np.linalg.norm(accel)), 2 * self.cfg.rest_window_s)
 
     def on_rates(self, t: float, rates: np.ndarray) -> None:
         """Body rates (rad/s) of an ATTITUDE sample."""
-        self.rates.append((t, float(np.linalg.norm(rates))))
-        self._forget(self.rates, t)
-
-    def _forget(self, samples: deque, t: float) -> None:
-        while samples and samples[0][0] < t - 2 * self.cfg.rest_window_s:
-            samples.popleft()
+        self.rates.add(t, np.array([np.linalg.norm(rates)]), 2 * self.cfg.rest_window_s)
 
     def _fresh(self, state: tuple[float, bool] | None, t: float) -> bool | None:
         if state is None or abs(t - state[0]) > self.cfg.flight_state_timeout_s:
@@ -91,22 +110,19 @@ class RestDetector:
             return None
         if armed:
             return False
-        return self.quiet(t) if self._window(self.accel, t) >= MIN_SAMPLES else None
+        window = self.accel.between(t - self.cfg.rest_window_s, t)
+        return self.quiet(t) if len(window) >= MIN_SAMPLES else None
 
     def at_rest(self, t: float) -> bool:
         """True when the vehicle stands still at time t."""
         return self.state(t) is True
 
-    def _window(self, samples: deque, t: float) -> int:
-        start = t - self.cfg.rest_window_s
-        return sum(start <= s <= t for s, _ in samples)
-
     def accelerating(self, t: float) -> bool:
         """The IMU's mean specific force over the last ONSET_S departs from what it read just
         before (its bias included) by more than ONSET_ACCEL beyond its noise: the vehicle is
         leaving the ground, which the land detector says only later."""
-        recent = self._norms(t - ONSET_S, t)
-        before = self._norms(t - 2 * self.cfg.rest_window_s, t - ONSET_S, closed=False)
+        recent = self.accel.between(t - ONSET_S, t)[:, 3]
+        before = self.accel.between(t - 2 * self.cfg.rest_window_s, t - ONSET_S, False)[:, 3]
         if len(recent) < 2:
             return False
         baseline = float(np.median(before)) if len(before) >= MIN_SAMPLES else GRAVITY
@@ -114,19 +130,14 @@ class RestDetector:
         noise = 3.0 * spread / np.sqrt(len(recent))
         return abs(float(np.mean(recent)) - baseline) > ONSET_ACCEL + noise
 
-    def _norms(self, start: float, end: float, closed: bool = True) -> np.ndarray:
-        return np.array([np.linalg.norm(a) for s, a in self.accel
-                         if start <= s and (s <= end if closed else s < end)])
-
     def quiet(self, t: float) -> bool:
         """The IMU (and gyro, when known) showed no motion over the window ending at t."""
         cfg = self.cfg
         start = t - cfg.rest_window_s
-        accel = np.array([a for s, a in self.accel if start <= s <= t])
-        if len(accel) < MIN_SAMPLES:
+        window = self.accel.between(start, t)
+        if len(window) < MIN_SAMPLES:
             return False
-        norm = np.linalg.norm(accel, axis=1)
-        steady = (np.max(np.abs(norm - GRAVITY)) <= cfg.rest_accel_tol
-                  and float(np.max(np.std(accel, axis=0))) <= cfg.rest_accel_tol / 3)
-        rates = [r for s, r in self.rates if start <= s <= t]
-        return steady and (not rates or max(rates) <= cfg.rest_gyro_tol)
+        steady = (np.max(np.abs(window[:, 3] - GRAVITY)) <= cfg.rest_accel_tol
+                  and float(np.max(np.std(window[:, :3], axis=0))) <= cfg.rest_accel_tol / 3)
+        rates = self.rates.between(start, t)
+        return steady and (not len(rates) or float(rates.max()) <= cfg.rest_gyro_tol)

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
+from daemon.autopilot_watch import is_autopilot_heartbeat
 from daemon.mounting import rotation_zyx
 
 GRAVITY = 9.80665
@@ -84,7 +85,6 @@ class LocalPosition:
 
 
 Sample = Imu | Attitude | Range | Baro | LocalPosition
-NOT_AUTOPILOTS = (mavlink2.MAV_TYPE_GCS, mavlink2.MAV_TYPE_ONBOARD_CONTROLLER)
 ARDUPILOT_LANDED = {mavlink2.MAV_STATE_STANDBY: True, mavlink2.MAV_STATE_ACTIVE: False}
 LANDED = {mavlink2.MAV_LANDED_STATE_ON_GROUND: True, mavlink2.MAV_LANDED_STATE_IN_AIR: False,
           mavlink2.MAV_LANDED_STATE_TAKEOFF: False, mavlink2.MAV_LANDED_STATE_LANDING: False}
@@ -184,11 +184,10 @@ def flight_states(msg: object) -> list[tuple[str, bool | None]]:
     kind = msg.get_type()
     if kind == "EXTENDED_SYS_STATE":
         return [("landed", LANDED.get(msg.landed_state))]
-    mode = msg.base_mode if kind == "HEARTBEAT" else None
-    if not (isinstance(mode, int) and msg.autopilot != mavlink2.MAV_AUTOPILOT_INVALID
-            and msg.type not in NOT_AUTOPILOTS):
+    if (kind != "HEARTBEAT" or not isinstance(msg.base_mode, int)  # a corrupt one: not read
+            or not is_autopilot_heartbeat(msg)):
         return []
-    states = [("armed", bool(mode & mavlink2.MAV_MODE_FLAG_SAFETY_ARMED))]
+    states = [("armed", bool(msg.base_mode & mavlink2.MAV_MODE_FLAG_SAFETY_ARMED))]
     if msg.autopilot == mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA:
         states.append(("landed", ARDUPILOT_LANDED.get(msg.system_status)))
     return states
