@@ -96,10 +96,6 @@ class AttitudeControl:
              ("P", "I", "D", "IMAX", "FLTT", "FLTE", "FLTD")}
         return Pid(g["P"], g["I"], g["D"], g["IMAX"], g["FLTT"], g["FLTE"], g["FLTD"])
 
-    def accel_max(self) -> np.ndarray:
-        """ATC_ACCEL_R/P/Y_MAX in rad/s^2 (0 = no limit)."""
-        return self._accel
-
     def angle_max(self) -> float:
         return math.radians(self.params.get("ANGLE_MAX") / 100.0)
 

@@ -20,8 +20,6 @@ import numpy as np
 
 from sim.autopilot.airframe import AIR_DENSITY, GRAVITY
 
-SEA_LEVEL_HPA = 1013.25
-
 
 @dataclass(frozen=True)
 class BaroSpec:
@@ -31,11 +29,6 @@ class BaroSpec:
     prop_wash_share: float = 0.12  # of the disc loading, reads high in flight
     ground_effect_m: float = 1.0  # reads low near the ground under hover thrust
     ground_effect_height_m: float = 2.0
-
-
-def pressure_hpa(altitude_m: float) -> float:
-    """Standard-atmosphere static pressure at an altitude above sea level."""
-    return SEA_LEVEL_HPA * (1 - 2.25577e-5 * altitude_m) ** 5.25588
 
 
 class Barometer:

@@ -32,13 +32,13 @@ from sim.autopilot.streams import (
     AP_DEFAULT_INTERVAL,
     AP_GROUP_MESSAGES,
     AP_KNOWN,
+    VISION_MESSAGES,
     Schedule,
     ardupilot_group_rates,
 )
 from sim.autopilot.vehicle import SENSOR_MESSAGES, sensor_message
 from sim.autopilot.visual_odom import Ahrs, VisualOdom
 
-VISION = ("ODOMETRY", "VISION_POSITION_ESTIMATE", "VISION_SPEED_ESTIMATE")
 ARMING_CHECK_ALL = 1
 ARMING_CHECK_VISION = 1 << 18
 FORCE_ARM = 2989  # magic_force_arm_value
@@ -244,7 +244,7 @@ class ArduCopterModel(AutopilotModel):
 
     def handle_firmware(self, msg: object, now: float) -> None:
         kind = msg.get_type()
-        if kind in VISION:
+        if kind in VISION_MESSAGES:
             self._vision(msg, now)
         elif kind == "REQUEST_DATA_STREAM":
             self._request_data_stream(msg)

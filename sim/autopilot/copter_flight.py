@@ -32,18 +32,17 @@ from sim.autopilot.rc_input import RcInput
 
 THROTTLE_CUTOFF_HZ = 2.0  # POSCONTROL_THROTTLE_CUTOFF_FREQ_HZ
 HOVER_LEARN_TC_S = 10.0  # AP_MOTORS_THST_HOVER_TC
-LAND_TRIGGER_S, LAND_MAYBE_S = 1.0, 0.2
+LAND_TRIGGER_S = 1.0
 LARGE_ANGLE = math.radians(15.0)  # LAND_CHECK_LARGE_ANGLE_CD
 ACCEL_MOVING = 3.0  # LAND_CHECK_ACCEL_MOVING, m/s^2
 FLT_EPSILON = 1.1920929e-07  # AP_Math is_zero(): a shaped climb rate decays to residue, not 0
 
 
 class LandDetector:
-    """ap.land_complete and land_complete_maybe."""
+    """ap.land_complete (land_complete_maybe not modelled: nothing here reads it)."""
 
     def __init__(self) -> None:
         self.complete = True
-        self.maybe = True
         self.settled_s = 0.0
         self.accel = np.zeros(3)
 
@@ -179,7 +178,6 @@ class CopterFlight:
                             or self.sensors.rangefinder.distance_m < 2.0))
             land.settled_s = land.settled_s + dt if settled else 0.0
             land.complete = land.settled_s >= LAND_TRIGGER_S
-        land.maybe = land.complete or land.settled_s >= LAND_MAYBE_S
 
     def _mix_is_min(self) -> bool:
         return self.throttle_mix < 1.25 * self.params.get("ATC_THR_MIX_MIN")

@@ -57,9 +57,6 @@ class FlightMode(ABC):
     def is_landing(self) -> bool:
         return False
 
-    def is_taking_off(self) -> bool:
-        return False
-
 
 class Stabilize(FlightMode):
     number = 0
@@ -194,9 +191,6 @@ class Guided(FlightMode):
             f.pos.init_xy(f.nav, f.lean_accel())
             f.pos.init_z(f.nav, f.att.throttle_in, f.hover())
             self.target = (f.pos.stopping_point_xy(f.nav), -f.nav.position[2])
-
-    def is_taking_off(self) -> bool:
-        return self.takeoff is not None and not self.takeoff.complete
 
     def user_takeoff(self, f: object, alt: float) -> bool:
         """do_user_takeoff: armed, landed, and above the present altitude."""

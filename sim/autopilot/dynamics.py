@@ -100,10 +100,6 @@ class FlyingVehicle:
     def on_ground(self) -> bool:
         return self.body.on_ground
 
-    @property
-    def ground_down_m(self) -> float:
-        return self.body.ground_z
-
     # --- stepping ---------------------------------------------------------------------------
 
     def advance(self, dt: float, command: np.ndarray) -> None:

@@ -90,7 +90,6 @@ class Ekf3:
         self.ratios = {"vel": 0.0, "pos": 0.0, "hgt": 0.0}
         self.baro_offset = 0.0
         self.last_known_ne = np.zeros(2)
-        self.origin_set = False
         self._pos: ExtNavPose | None = None
         self._vel: ExtNavVelocity | None = None
         self._last_meas_time = -np.inf

@@ -59,7 +59,6 @@ class Motors:
     desired: Spool = Spool.SHUT_DOWN
     ramp: float = 0.0  # 0 at ground idle .. 1 spooled up
     limit: Limits = field(default_factory=Limits)
-    throttle_out: float = 0.0
 
     def __post_init__(self) -> None:
         angles = np.radians(ARM_ANGLES_DEG)
@@ -88,7 +87,6 @@ class Motors:
         (thrust fraction 0..1), as the spool state allows."""
         if self.spool is Spool.SHUT_DOWN or self.spool is Spool.GROUND_IDLE:
             self.limit = Limits(True, True, True, True, False)
-            self.throttle_out = 0.0
             return np.zeros(4)
         thrust = self._mix(roll, pitch, yaw, throttle * self.ramp, params)  # ramps in spool-up
         return thrust_to_command(thrust, params.get("MOT_THST_EXPO"))
@@ -120,7 +118,6 @@ class Motors:
         elif throttle > high:
             throttle, limit.throttle_upper = high, True
         self.limit = limit
-        self.throttle_out = throttle
         return np.clip(throttle + rpy, 0.0, 1.0)
 
 

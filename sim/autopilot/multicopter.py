@@ -62,10 +62,6 @@ class Multicopter:
         self.wind = wind
         self._steps = 0
 
-    @property
-    def thrust_total(self) -> float:
-        return float(self.frame.thrust(self.motor).sum())
-
     def step(self, dt: float, command: np.ndarray) -> None:
         """Advance by dt with the motors commanded to `command` (4, each 0..1)."""
         self._spin(np.clip(command, 0.0, 1.0), dt)

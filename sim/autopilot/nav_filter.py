@@ -18,7 +18,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-GRAVITY = 9.80665
 HISTORY_S = 0.5
 INITIAL_POS_VAR = 0.25  # m^2, an EKF starting at rest at its origin
 INITIAL_VEL_VAR = 0.25  # (m/s)^2

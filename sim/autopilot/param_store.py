@@ -88,6 +88,3 @@ class ParamStore:
         if persist:
             self.saved[name] = float(value)
 
-    def pending_reboot(self) -> list[str]:
-        """Reboot-required parameters whose stored value differs from the running one."""
-        return [n for n, s in self.specs.items() if s.reboot and self.values[n] != self._active[n]]

@@ -85,8 +85,3 @@ class AutopilotRecord:
         found = self.of(kind)
         return found[0] if found else None
 
-    def heights(self) -> tuple[np.ndarray, np.ndarray]:
-        """(times, height above the origin) of the estimate history."""
-        t = np.array([s.t for s in self.estimates])
-        h = np.array([-s.position[2] for s in self.estimates])
-        return t, h

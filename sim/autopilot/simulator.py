@@ -26,9 +26,9 @@ from sim.autopilot.options import DEFAULT_STREAMS, SimOptions, configured_option
 from sim.autopilot.ports import open_port
 from sim.autopilot.px4 import Px4Model
 from sim.autopilot.records import AutopilotRecord
+from sim.autopilot.streams import VISION_MESSAGES
 from sim.autopilot.vehicle import Vehicle
 
-VISION_MESSAGES = ("ODOMETRY", "VISION_POSITION_ESTIMATE", "VISION_SPEED_ESTIMATE")
 __all__ = ["DEFAULT_STREAMS", "Received", "SimAutopilot", "SimOptions", "configured_options",
            "make_model"]
 

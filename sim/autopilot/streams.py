@@ -39,6 +39,8 @@ AP_KNOWN = {name for group in AP_GROUP_MESSAGES.values() for name in group} | {
     "HEARTBEAT", "SCALED_IMU", "HIGHRES_IMU", "HOME_POSITION", "GPS_GLOBAL_ORIGIN",
     "ATTITUDE_QUATERNION", "EXTENDED_SYS_STATE", "AUTOPILOT_VERSION", "RC_CHANNELS_RAW"}
 AP_DEFAULT_INTERVAL = {"HEARTBEAT": 1.0}
+# what a companion sends the autopilot its pose in
+VISION_MESSAGES = ("ODOMETRY", "VISION_POSITION_ESTIMATE", "VISION_SPEED_ESTIMATE")
 
 # mavlink_main.cpp configure_streams_to_default, rates in Hz (v1.14+), per MAV_n_MODE, for the
 # messages this simulator produces (Normal: only those read there; other modes: HEARTBEAT only)
@@ -90,10 +92,6 @@ class Schedule:
                 out.append(name)
                 self._due[name] = max(due + interval, now - interval)
         return out
-
-    def clear(self) -> None:
-        self.intervals.clear()
-        self._due.clear()
 
 
 def ardupilot_group_rates(schedule: Schedule, rates: dict[str, float]) -> None:

@@ -72,9 +72,10 @@ class Vehicle:
         self._t = np.asarray(self.trajectory.t, float)
         self._p = np.asarray(self.trajectory.positions, float)
         q = np.array(self.trajectory.quaternions, float)
-        for i in range(1, len(q)):  # one hemisphere, so neighbours interpolate the short way
-            if np.dot(q[i], q[i - 1]) < 0:
-                q[i] = -q[i]
+        # one hemisphere, so neighbours interpolate the short way: a sign flip at every
+        # neighbour on the other side carries on to the rest
+        flips = np.where(np.einsum("ij,ij->i", q[1:], q[:-1]) < 0, -1.0, 1.0)
+        q[1:] *= np.cumprod(flips)[:, None]
         self._q = q
 
     def _at(self, t: float) -> tuple[np.ndarray, np.ndarray]:

@@ -28,6 +28,7 @@ from daemon.frames import Frame
 from daemon.run_command import tracker_factory
 from daemon.service import Service
 from sim.autopilot.ports import UdpPort
+from sim.autopilot.streams import VISION_MESSAGES
 from sim.flight.autopilot_side import AutopilotSide
 from sim.flight.flight_run import FlightRun, Timing
 from sim.flight.loop import flight_config
@@ -37,7 +38,6 @@ from sim.flight.world import FlightWorld
 from sim.replay.autopilot_process import START_METHOD, VisionMessage
 from sim.replay.recording import Recorder
 
-VISION = ("ODOMETRY", "VISION_POSITION_ESTIMATE", "VISION_SPEED_ESTIMATE")
 WARMUP_FRAMES = 30  # enough for the map to start, so the mapping kernels are compiled too
 WARMUP_HEIGHT_M = 3.0
 SELECT_S = 0.002
@@ -109,7 +109,7 @@ def warm_up(world: FlightWorld, make_tracker: Callable[[Frame], object]) -> None
 
 def _vision(parser: object, data: bytes, arrival: float) -> list[VisionMessage]:
     return [VisionMessage(m.get_type(), arrival, m.to_dict())
-            for m in parser.parse_buffer(data) or [] if m.get_type() in VISION]
+            for m in parser.parse_buffer(data) or [] if m.get_type() in VISION_MESSAGES]
 
 
 def _autopilot_process(conn: multiprocessing.connection.Connection, mission: Mission,

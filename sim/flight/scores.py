@@ -20,7 +20,6 @@ from sim.autopilot.records import EventKind
 from sim.flight.flight_run import FlightRun
 from sim.flight.mission import Action
 from sim.flight.runner import Outcome, StepResult
-from sim.metrics import interpolate
 from sim.replay.fusion_scores import takeoff_time
 from sim.replay.harness import ReplayRun
 from sim.replay.report import build_report
@@ -95,11 +94,11 @@ class FlightScores:
         return self.extnav_s - self.takeoff_s
 
 
-def truth_at(run: FlightRun, t: float) -> np.ndarray:
-    """The vehicle's true position (NED) at time t."""
-    t = min(max(t, float(run.truth.t[0])), float(run.truth.t[-1]))
-    at, _ = interpolate(run.truth, np.array([t]), max_gap=np.inf)
-    return at.positions[0]
+def truth_at(run: FlightRun, t: float | np.ndarray) -> np.ndarray:
+    """The vehicle's true position (NED) at time t (or times t: one row each), linear between
+    truth samples and held beyond them."""
+    truth = run.truth
+    return np.stack([np.interp(t, truth.t, truth.positions[:, k]) for k in range(3)], axis=-1)
 
 
 def hold_scores(run: FlightRun) -> list[HoldScore]:
@@ -173,7 +172,7 @@ def _height_error(run: FlightRun, t: np.ndarray, down: np.ndarray, t_arm: float)
         return None
     at_arm = float(np.interp(t_arm, t, down))
     truth_arm = truth_at(run, t_arm)[2]
-    true_down = np.array([truth_at(run, x)[2] for x in t[inside]])
+    true_down = truth_at(run, t[inside])[:, 2]
     return float(np.max(np.abs((down[inside] - at_arm) - (true_down - truth_arm))))
 
 

@@ -34,7 +34,6 @@ START_METHOD = "forkserver"
 MAX_LEAD_S = 0.1
 PAD_S = 1.0  # the trajectory is held this long at both ends, so its derivatives stay defined
 PILOT_TICK_S = 0.05
-VISION = ("ODOMETRY", "VISION_POSITION_ESTIMATE", "VISION_SPEED_ESTIMATE")
 
 
 @dataclass(frozen=True)
