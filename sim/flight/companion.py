@@ -86,9 +86,12 @@ class LockstepCompanion:
         now = self.clock()
         if msg.get_type() == "TIMESYNC" and msg.tc1 == 0:
             self.codec.send(self.codec.mav.timesync_encode(round(now * 1e9), msg.ts1))
-        for event in self.watch.on_message(msg, now):
+        verdict = self.watch.receive(msg, now)  # as the service: only its bound autopilot's
+        for event in verdict.events:
             if event in ("reconnected", "rebooted") and self.origin is not None:
                 self.origin.restart()
+        if not verdict.accepted:
+            return
         self.streams.on_message(msg, now)
         if self.origin is not None:
             self.origin.on_message(msg)
