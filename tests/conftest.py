@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 from pathlib import Path
 
 import pytest
@@ -17,3 +18,13 @@ def data_dir() -> Path:
     """The shared data folder; the test fails loudly if it is missing (CI must have it)."""
     assert DATA_DIR.is_dir(), f"test data not found at {DATA_DIR}; set SDVL_DATA"
     return DATA_DIR
+
+
+@pytest.fixture(autouse=True)
+def _signal_handlers_restored():
+    """A test that runs `sdvl run` in this process installs its signal handlers; the next test
+    (and the pool workers it forks) gets the process's own back."""
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)}
+    yield
+    for sig, handler in saved.items():
+        signal.signal(sig, handler)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import multiprocessing
 import os
+import signal
 import threading
 from collections.abc import Callable
 from pathlib import Path
@@ -25,6 +26,13 @@ _RENDER: dict = {}  # the sequence and folder the forked workers render from
 def renders_on_the_fly(sequence: object) -> bool:
     """Synthetic flights (sim.synth) name their preset in extras."""
     return "preset" in getattr(sequence, "extras", {})
+
+
+def _default_signals() -> None:
+    """A forked worker ends on the SIGTERM the pool's exit sends, whatever handler the parent
+    had installed (`sdvl run`'s only sets a flag, so the exit would wait for it forever)."""
+    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_DFL)
 
 
 def _render(i: int) -> int:
@@ -44,7 +52,7 @@ def prerendered(sequence: Sequence, folder: Path, frames: int, on_frame: Callabl
     result: list = []
     try:
         # the workers fork before the thread starts: no lock of the thread's is copied
-        with multiprocessing.get_context("fork").Pool(workers) as pool:
+        with multiprocessing.get_context("fork").Pool(workers, _default_signals) as pool:
             thread = threading.Thread(target=lambda: result.append(alongside()),
                                       name="alongside-rendering")
             thread.start()
