@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import multiprocessing
+import multiprocessing.pool
 import os
 import signal
 import threading
@@ -28,11 +29,25 @@ def renders_on_the_fly(sequence: object) -> bool:
     return "preset" in getattr(sequence, "extras", {})
 
 
+_WORKER_SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
+
+
 def _default_signals() -> None:
-    """A forked worker ends on the SIGTERM the pool's exit sends, whatever handler the parent
-    had installed (`sdvl run`'s only sets a flag, so the exit would wait for it forever)."""
-    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+    """In a forked worker: the default handlers, then the signals unblocked, so a SIGTERM that
+    arrived meanwhile ends it (the parent's handler, e.g. `sdvl run`'s that only sets a flag,
+    would keep it alive and the pool's exit would wait for it forever)."""
+    for sig in _WORKER_SIGNALS:
         signal.signal(sig, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _WORKER_SIGNALS)
+
+
+def _render_pool(workers: int) -> multiprocessing.pool.Pool:
+    """A pool of forked workers that start with the signals blocked until `_default_signals`."""
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, _WORKER_SIGNALS)
+    try:
+        return multiprocessing.get_context("fork").Pool(workers, _default_signals)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
 
 
 def _render(i: int) -> int:
@@ -52,12 +67,14 @@ def prerendered(sequence: Sequence, folder: Path, frames: int, on_frame: Callabl
     result: list = []
     try:
         # the workers fork before the thread starts: no lock of the thread's is copied
-        with multiprocessing.get_context("fork").Pool(workers, _default_signals) as pool:
+        with _render_pool(workers) as pool:
             thread = threading.Thread(target=lambda: result.append(alongside()),
                                       name="alongside-rendering")
             thread.start()
             for done, _ in enumerate(pool.imap_unordered(_render, range(frames), chunksize=4)):
                 on_frame(done + 1)
+            pool.close()  # the workers end on their own; the exit's SIGTERM only for errors
+            pool.join()
             thread.join()
     finally:
         _RENDER.clear()
