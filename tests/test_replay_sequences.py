@@ -26,8 +26,9 @@ def test_vamr_fast_replay_scores_json_plot_and_agrees_with_eval(data_dir, tmp_pa
     assert r["mode"] == "fast" and r["estimator"] == "pass-through" and r["align"] == "sim3"
     assert r["frames"] == 300 and r["processed"] == 300 and r["dropped"] == 0
     assert r["tracked_fraction"] >= 0.85 and r["resets"] == 0
-    # every tracked frame but the first of the map reaches the autopilot (rate-limited replay)
-    assert r["messages_received"] >= r["tracked"] - 5
+    # every tracked frame but the first of the map reaches the autopilot (rate-limited replay),
+    # or was too old to send when the machine is busy
+    assert r["messages_received"] + r["skipped_stale"] >= r["tracked"] - 5
     assert r["scored"] == r["messages_received"]
     assert r["ate_rmse_m"] < 0.005  # path ~1 m over the checkerboard; C++ SDVL: 0.0047 m full
     assert r["velocity_rmse_m_s"] is not None and r["latency_ms_p99"] > 0
@@ -51,7 +52,7 @@ def test_tum_replay(data_dir, tmp_path, capsys):
     # robust sparse alignment loses frames 154-188 of this fast roll as well as 34-67 (207
     # of 300 tracked; plain least squares lost only 34-67)
     assert r["tracked"] >= 0.65 * r["frames"] and r["resets"] <= 4
-    assert r["messages_received"] >= r["tracked"] - 5
+    assert r["messages_received"] + r["skipped_stale"] >= r["tracked"] - 5  # stale: busy
     # mostly rotation (~0.2 m of translation): a constant estimate scores ~0.05 m here
     assert r["ate_rmse_m"] < 0.045
     # at most one message a frame; how fast they come and how late is the machine's business
@@ -87,7 +88,7 @@ def test_synthetic_take_off_replay_with_pass_through(tmp_path, capsys):
     assert r["sequence"] == "hover-down" and r["estimator"] == "pass-through"
     assert r["frames"] == 150 and r["dropped"] == 0
     assert r["tracked_fraction"] >= 0.75 and r["resets"] == 0
-    assert r["messages_received"] >= 0.9 * r["tracked"]
+    assert r["messages_received"] + r["skipped_stale"] >= 0.9 * r["tracked"]  # stale: busy
     assert r["ate_rmse_m"] < 0.4  # a 2.5 m climb with a slow wander; measured 0.15 m
 
 
@@ -100,5 +101,5 @@ def test_synthetic_preset_replays(tmp_path, capsys, preset, max_ate_m):
                     "150", "--config", str(config), "--out", str(tmp_path))
     assert r["frames"] == 150 and r["dropped"] == 0 and r["resets"] == 0
     assert r["tracked_fraction"] >= 0.8
-    assert r["messages_received"] >= r["tracked"] - 5
+    assert r["messages_received"] + r["skipped_stale"] >= r["tracked"] - 5  # stale: busy
     assert r["ate_rmse_m"] < max_ate_m
