@@ -11,6 +11,7 @@ from sdvl.errors import InputError
 
 # method -> the alignment its trajectory is scored after
 METHODS = {"sdvl": "sim3", "sdvl-depth": "se3", "rgbd-sift": "se3"}
+SDVL_METHODS = ("sdvl", "sdvl-depth")  # the methods of the SDVL tracker (a TrackerConfig)
 
 
 def alignment(method: str) -> str:
@@ -30,7 +31,7 @@ def check_method(method: str, sequence=None) -> None:
 def load_config(method: str, path: Path | None):
     """The method's config: TrackerConfig ([tracker]) for SDVL (with or without depth),
     RgbdConfig ([rgbd]) for the RGB-D odometry; defaults without a file."""
-    if method == "rgbd-sift":
+    if method not in SDVL_METHODS:
         from vo.rgbd_odometry import RgbdConfig
 
         return RgbdConfig.from_toml(path) if path else RgbdConfig()

@@ -2,8 +2,8 @@
 BA x outlier rejection) over sequences and print the table of ATE RMSE, frames tracked,
 tracking ms and mapping ms (like thesis tables 7.1-7.4), with the original C++ SDVL figures
 from the shared data README beside the real sequences. The other methods of
-sim.track_methods (the RGB-D baseline `rgbd-sift`) can be rows too; their ATE is after an
-SE(3) alignment."""
+sim.track_methods (SDVL with depth `sdvl-depth`, the RGB-D baseline `rgbd-sift`) can be rows
+too; their ATE is after an SE(3) alignment."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from sdvl.errors import InputError
-from sim.track_methods import METHODS, alignment, check_method, load_config
+from sim.track_methods import METHODS, SDVL_METHODS, alignment, check_method, load_config
 from sim.track_sweep import Variant, format_summary, summary, variants
 
 DEFAULT_SEQUENCES = ("vamr_ex01_checkerboard736", "kitti00_first200", "tum_fr1_rpy")
@@ -172,15 +172,17 @@ def _print_summary(rows: list[dict], plan: list, as_json: bool) -> None:
 
 
 def row_config(name: str, seq_name: str, variant: Variant, seed: int | None, config_class):
-    """The config of a row: a thesis configuration over the sequence's base preset with the
-    variant's parameters, or another method's defaults (a variant does not apply to those);
-    `seed` (if given) replaces the config's."""
-    if name in METHODS:
+    """The config of a row: a thesis configuration (or SDVL with depth, the first's
+    parameters) over the sequence's base preset with the variant's parameters, or another
+    method's defaults (a variant does not apply to those); `seed` (if given) replaces the
+    config's."""
+    if name in METHODS and name not in SDVL_METHODS:
         config = load_config(name, None)
         if seed is not None:
             config.seed = seed
         return config
-    parameters = {**base_parameters(seq_name), **CONFIGS[name], **dict(variant.parameters)}
+    parameters = {**base_parameters(seq_name), **CONFIGS.get(name, {}),
+                  **dict(variant.parameters)}
     if seed is not None:
         parameters["seed"] = seed
     return config_class.from_dict(parameters)

@@ -130,3 +130,17 @@ def test_sdvl_track_method_sdvl_depth_scores_se3_from_the_first_frame(capsys):
     report = json.loads(capsys.readouterr().out)
     assert report["align"] == "se3" and report["tracked"] == 10 and report["segments"] == 1
     assert report["first_pose_frame"] == 0 and report["first_depth_frame"] == 0
+
+
+def test_track_table_has_sdvl_depth_rows_with_variants(capsys):
+    assert main(["track-table", "room-handheld", "--size", "320x240", "--configs",
+                 "patch,sdvl-depth", "--set", "depth_noise_per_m2=0.004,0.01", "--max-frames",
+                 "6", "--warm-up", "0", "--json"]) == 0
+    rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    rows = [r for r in rows if "summary" not in r]
+    depth_rows = [r for r in rows if r["config"] == "sdvl-depth"]
+    assert [r["variant"] for r in depth_rows] == ["depth_noise_per_m2=0.004",
+                                                  "depth_noise_per_m2=0.01"]
+    assert all(r["align"] == "se3" and r["tracked"] == 6 for r in depth_rows)
+    patch = next(r for r in rows if r["config"] == "patch")
+    assert patch["align"] == "sim3" and patch["tracked"] < 6  # two views before a map
