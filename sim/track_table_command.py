@@ -293,19 +293,23 @@ def table_row(sequence: str, config: str, report: dict) -> dict:
             "longest_segment_ate_rmse_m": report["longest_segment_ate_rmse_m"],
             "track_ms_median": report["track_ms_median"],
             "track_ms_p95": report["track_ms_p95"], "mapping_ms_median": stages.get("mapping"),
-            "mapping_ms_mean": report["stages_mean"].get("mapping")}
+            "mapping_ms_mean": report["stages_mean"].get("mapping"),
+            "path_length_m": report.get("path_length_m"),
+            "first_pose_frame": report.get("first_pose_frame")}
 
 
 def header() -> str:
     """Column titles of the text table."""
     return (f"{'sequence':<26} {'config':<22} {'tracked':>9} {'ATE m':>11} {'seg':>4} "
-            f"{'track ms':>9} {'p95 ms':>7} {'map ms':>7} {'map mean':>8}")
+            f"{'track ms':>9} {'p95 ms':>7} {'map ms':>7} {'map mean':>8} {'ATE %path':>9} "
+            f"{'1st pose':>8}")
 
 
 def format_row(r: dict) -> str:
     """One line of the text table: ATE over all segments (several segments are only
     indicative, each having its own scale), tracking median and p95 ms, mapping median and
-    mean ms."""
+    mean ms, the ATE in % of the path's length and the index of the first frame with a
+    pose."""
     thesis = THESIS_NAMES.get(r['config'], r.get('align', '').upper() + ' ATE')
     label = f"{r['config']} ({thesis})"
     extra = [f"world {r['world_seed']}" if r.get("world_seed") is not None else "",
@@ -318,8 +322,11 @@ def format_row(r: dict) -> str:
     def num(x, fmt):
         return format("n/a" if x is None else format(x, fmt), f">{fmt.split('.')[0]}")
 
+    path = r.get("path_length_m")
+    percent = None if not path or r["ate_rmse_m"] is None else 100.0 * r["ate_rmse_m"] / path
     return (f"{r['sequence']:<26} {label:<22} {r['tracked']:>4}/{r['frames']:<4} "
             f"{num(r['ate_rmse_m'], '11.4f')} {r['segments']:>4} "
             f"{num(r['track_ms_median'], '9.2f')} {num(r['track_ms_p95'], '7.2f')} "
             f"{num(r['mapping_ms_median'], '7.2f')} "
-            f"{num(r['mapping_ms_mean'], '8.2f')}")
+            f"{num(r['mapping_ms_mean'], '8.2f')} {num(percent, '9.2f')} "
+            f"{num(r.get('first_pose_frame'), '8.0f')}")
