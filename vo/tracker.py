@@ -24,7 +24,7 @@ from calib.camera import CameraModel
 from sdvl.errors import InputError
 from vo import bundle_adjustment
 from vo.config import TrackerConfig
-from vo.depth_seeds import check_depth_map
+from vo.depth_seeds import DepthSeeds, check_depth_map
 from vo.frame import Frame
 from vo.frame_tracking import FrameTracking
 from vo.initialization import Initializer, InitialMap, InitOutcome
@@ -214,14 +214,24 @@ class Tracker:
                           timings: dict[str, float]) -> tuple[FrameResult, bool]:
         """A new map from frame's depth map alone (frame is its first keyframe, a new
         segment); no pose while the frame has no depth map or too few corners with depth."""
+        seeds = self._depth_seeds(frame, timings)
+        if seeds is None:
+            return FrameResult(frame.t, None, Quality.INITIALIZING), False
+        return self._start_depth_map(frame, seeds), True
+
+    def _depth_seeds(self, frame: Frame, timings: dict[str, float]) -> DepthSeeds | None:
+        """The points of a map started on frame from its depth map (None: no depth map, or
+        too few corners with depth)."""
         t0 = time.perf_counter()
         seeds = None if frame.depth is None else seeds_for_map(frame, self.mapper, self.config)
         timings["init"] = ms_since(t0)
-        if seeds is None:
-            return FrameResult(frame.t, None, Quality.INITIALIZING), False
+        return seeds
+
+    def _start_depth_map(self, frame: Frame, seeds: DepthSeeds) -> FrameResult:
+        """A new map of frame and its depth seeds; frame's result (a new segment)."""
         n = build_depth_map(self.map, frame, seeds, self.config)
         self.state = TrackerState.TRACKING
-        return self.tracking.start(frame, n), True
+        return self.tracking.start(frame, n)
 
     def _on_lost(self) -> None:
         """Tracking is lost: relocalise (6.9) against the map from now on (building a new
@@ -270,12 +280,14 @@ class Tracker:
     def _restart_from_depth(self, frame: Frame, timings: dict[str, float],
                             lost: FrameResult) -> tuple[FrameResult, bool]:
         """With depth, a new map from a frame's depth replaces the old one once relocalisation
-        has failed for reinit_after_lost_frames frames since frames came with depth."""
-        if not self.config.reinit_when_lost or frame.depth is None:
+        has failed for reinit_after_lost_frames frames since a frame could start one (enough
+        corners with depth: a covered lens does not count)."""
+        seeds = self._depth_seeds(frame, timings) if self.config.reinit_when_lost else None
+        if seeds is None:
             return lost, False
         if self.view_since is None:
             self.view_since = frame.id
         if frame.id - self.view_since < self.config.reinit_after_lost_frames:
             return lost, False
         self._reset()
-        return self._start_from_depth(frame, timings)
+        return self._start_depth_map(frame, seeds), True
