@@ -154,10 +154,13 @@ def _sequences(args: argparse.Namespace):
 
         size = parse_size(args.size)
     worlds = [None] if args.world_seeds is None else parse_seeds(args.world_seeds)
+    depth = any(name in METHODS and alignment(name) == "se3"
+                for name in config_names(args.configs))
     for name in args.sequences:
         for world in worlds:
             sequence = resolve_sequence(name, size, world, args.textures)
-            yield Path(name).name, world, in_memory(sequence, args.max_frames)
+            yield Path(name).name, world, in_memory(sequence, args.max_frames,
+                                                    depth and sequence.has_depth)
 
 
 def _print_summary(rows: list[dict], plan: list, as_json: bool) -> None:
@@ -233,13 +236,20 @@ def format_ratios(sequence: str, label: str, first: str, ratios: dict[str, float
     return f"{sequence:<26} {label}: track p95 / {first}'s: {text}"
 
 
-def in_memory(sequence, max_frames: int | None):
+def in_memory(sequence, max_frames: int | None, depth: bool = False):
     """The sequence with its frames read (or rendered) once and kept in memory, so every
-    configuration replays the same images without decoding or rendering them again."""
+    configuration replays the same images without decoding or rendering them again; with
+    `depth`, its depth maps too (4 bytes a pixel), so that no depth map is read or rendered
+    between two tracked frames either: a depth row's times are then comparable with a
+    monocular row's."""
     frames = list(sequence.frames(max_frames))
     images = [image for _, image in frames]
+    loaded = {}
+    if depth:
+        maps = [sequence.depth(i) for i in range(len(frames))]
+        loaded = {"depth_loader": maps.__getitem__}
     return dataclasses.replace(sequence, timestamps=np.array([t for t, _ in frames]),
-                               image_loader=images.__getitem__, frame_iter=None)
+                               image_loader=images.__getitem__, frame_iter=None, **loaded)
 
 
 def warm_up(sequence, track_sequence, config_class, frames: int) -> None:
