@@ -52,8 +52,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "attempts, RANSAC hypotheses, inliers, keyframe and new-segment "
                              "flags, position error (m) after the Sim(3) alignment")
     parser.add_argument("--method", default="sdvl", choices=list(METHODS),
-                        help="sdvl (monocular, ATE after Sim(3) alignment) or rgbd-sift (the "
-                             "RGB-D odometry baseline, needs depth; SE(3) alignment)")
+                        help="sdvl (monocular, ATE after Sim(3) alignment), sdvl-depth (SDVL "
+                             "with the sequence's depth maps: metric, SE(3) alignment) or "
+                             "rgbd-sift (the RGB-D odometry baseline, needs depth; SE(3) "
+                             "alignment)")
     parser.add_argument("--json", action="store_true", help="print one JSON object at the end")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
@@ -115,8 +117,8 @@ def run(args: argparse.Namespace) -> int:
         size = parse_size(args.size)
     sequence = resolve_sequence(args.sequence, size)
     check_method(args.method, sequence)
-    if args.memory is not None and args.method != "sdvl":
-        raise InputError("--memory reports SDVL's map: it is for --method sdvl")
+    if args.memory is not None and args.method == "rgbd-sift":
+        raise InputError("--memory reports SDVL's map: it is for --method sdvl or sdvl-depth")
     rows: list[dict] | None = None if args.frames_csv is None else []
     report, estimate = track_sequence(sequence, config, args.threaded, args.max_frames,
                                       args.quiet, args.memory, frame_rows=rows,
@@ -169,6 +171,9 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
     report = build_report(sequence, log.n_frames, estimate, np.array(log.segment), log.timings,
                           log.qualities, log.first_pose_s, alignment(method))
     report["skipped"] = log.skipped
+    report["first_pose_frame"] = log.first_pose_frame
+    if alignment(method) == "se3":  # a depth method: its map starts on the first depth map
+        report["first_depth_frame"] = tracker.first_depth_frame
     # local BAs the mapping thread skipped or ended early for a waiting frame (current map)
     mapper = getattr(tracker, "mapper", None)
     report["ba_skipped"] = getattr(mapper, "skipped_ba", 0)
@@ -194,6 +199,7 @@ class TrackLog:
     qualities: list[str] = field(default_factory=list)
     memory: list[dict] = field(default_factory=list)
     first_pose_s: float | None = None  # seconds from the start to the first pose
+    first_pose_frame: int | None = None  # index of the first frame with a pose
 
     def add(self, t: float, result) -> None:
         """One camera frame at time t: its FrameResult, or None when it was skipped."""
@@ -213,6 +219,7 @@ class TrackLog:
                                 + int(result.new_segment))
             if self.first_pose_s is None:
                 self.first_pose_s = time.perf_counter() - self.started
+                self.first_pose_frame = self.n_frames - 1
 
 
 def camera_rate() -> Callable[[float], None]:
@@ -320,10 +327,16 @@ def format_report(r: dict) -> str:
              f"tracked    {r['tracked']} ({100.0 * r['tracked'] / max(r['frames'], 1):.1f}%)"]
     if r["ate_rmse_m"] is not None:
         label = {"sim3": "Sim3", "se3": "SE3"}.get(r["align"], r["align"])
-        lines.append(f"ATE RMSE   {r['ate_rmse_m']:.4f} m ({label}), rotation RMSE "
+        path = r.get("path_length_m")
+        of_path = f", {100.0 * r['ate_rmse_m'] / path:.2f}% of the {path:.1f} m path" if path \
+            else ""
+        lines.append(f"ATE RMSE   {r['ate_rmse_m']:.4f} m ({label}{of_path}), rotation RMSE "
                      f"{r['rot_rmse_deg']:.2f} deg")
     else:
         lines.append("ATE RMSE   n/a (no ground truth)")
+    if "first_depth_frame" in r:
+        lines.append(f"first pose frame {r['first_pose_frame']} (first depth map: frame "
+                     f"{r['first_depth_frame']})")
     if r["segments"] > 1:
         seg_ate = r["longest_segment_ate_rmse_m"]
         lines.append(f"segments   {r['segments']} (relocalised or re-initialised); longest "

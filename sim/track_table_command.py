@@ -2,8 +2,8 @@
 BA x outlier rejection) over sequences and print the table of ATE RMSE, frames tracked,
 tracking ms and mapping ms (like thesis tables 7.1-7.4), with the original C++ SDVL figures
 from the shared data README beside the real sequences. The other methods of
-sim.track_methods (the RGB-D baseline `rgbd-sift`) can be rows too; their ATE is after an
-SE(3) alignment."""
+sim.track_methods (SDVL with depth `sdvl-depth`, the RGB-D baseline `rgbd-sift`) can be rows
+too; their ATE is after an SE(3) alignment."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from sdvl.errors import InputError
-from sim.track_methods import METHODS, alignment, check_method, load_config
+from sim.track_methods import METHODS, SDVL_METHODS, alignment, check_method, load_config
 from sim.track_sweep import Variant, format_summary, summary, variants
 
 DEFAULT_SEQUENCES = ("vamr_ex01_checkerboard736", "kitti00_first200", "tum_fr1_rpy")
@@ -154,10 +154,13 @@ def _sequences(args: argparse.Namespace):
 
         size = parse_size(args.size)
     worlds = [None] if args.world_seeds is None else parse_seeds(args.world_seeds)
+    depth = any(name in METHODS and alignment(name) == "se3"
+                for name in config_names(args.configs))
     for name in args.sequences:
         for world in worlds:
             sequence = resolve_sequence(name, size, world, args.textures)
-            yield Path(name).name, world, in_memory(sequence, args.max_frames)
+            yield Path(name).name, world, in_memory(sequence, args.max_frames,
+                                                    depth and sequence.has_depth)
 
 
 def _print_summary(rows: list[dict], plan: list, as_json: bool) -> None:
@@ -172,15 +175,17 @@ def _print_summary(rows: list[dict], plan: list, as_json: bool) -> None:
 
 
 def row_config(name: str, seq_name: str, variant: Variant, seed: int | None, config_class):
-    """The config of a row: a thesis configuration over the sequence's base preset with the
-    variant's parameters, or another method's defaults (a variant does not apply to those);
-    `seed` (if given) replaces the config's."""
-    if name in METHODS:
+    """The config of a row: a thesis configuration (or SDVL with depth, the first's
+    parameters) over the sequence's base preset with the variant's parameters, or another
+    method's defaults (a variant does not apply to those); `seed` (if given) replaces the
+    config's."""
+    if name in METHODS and name not in SDVL_METHODS:
         config = load_config(name, None)
         if seed is not None:
             config.seed = seed
         return config
-    parameters = {**base_parameters(seq_name), **CONFIGS[name], **dict(variant.parameters)}
+    parameters = {**base_parameters(seq_name), **CONFIGS.get(name, {}),
+                  **dict(variant.parameters)}
     if seed is not None:
         parameters["seed"] = seed
     return config_class.from_dict(parameters)
@@ -231,13 +236,20 @@ def format_ratios(sequence: str, label: str, first: str, ratios: dict[str, float
     return f"{sequence:<26} {label}: track p95 / {first}'s: {text}"
 
 
-def in_memory(sequence, max_frames: int | None):
+def in_memory(sequence, max_frames: int | None, depth: bool = False):
     """The sequence with its frames read (or rendered) once and kept in memory, so every
-    configuration replays the same images without decoding or rendering them again."""
+    configuration replays the same images without decoding or rendering them again; with
+    `depth`, its depth maps too (4 bytes a pixel), so that no depth map is read or rendered
+    between two tracked frames either: a depth row's times are then comparable with a
+    monocular row's."""
     frames = list(sequence.frames(max_frames))
     images = [image for _, image in frames]
+    loaded = {}
+    if depth:
+        maps = [sequence.depth(i) for i in range(len(frames))]
+        loaded = {"depth_loader": maps.__getitem__}
     return dataclasses.replace(sequence, timestamps=np.array([t for t, _ in frames]),
-                               image_loader=images.__getitem__, frame_iter=None)
+                               image_loader=images.__getitem__, frame_iter=None, **loaded)
 
 
 def warm_up(sequence, track_sequence, config_class, frames: int) -> None:
@@ -291,19 +303,23 @@ def table_row(sequence: str, config: str, report: dict) -> dict:
             "longest_segment_ate_rmse_m": report["longest_segment_ate_rmse_m"],
             "track_ms_median": report["track_ms_median"],
             "track_ms_p95": report["track_ms_p95"], "mapping_ms_median": stages.get("mapping"),
-            "mapping_ms_mean": report["stages_mean"].get("mapping")}
+            "mapping_ms_mean": report["stages_mean"].get("mapping"),
+            "path_length_m": report.get("path_length_m"),
+            "first_pose_frame": report.get("first_pose_frame")}
 
 
 def header() -> str:
     """Column titles of the text table."""
     return (f"{'sequence':<26} {'config':<22} {'tracked':>9} {'ATE m':>11} {'seg':>4} "
-            f"{'track ms':>9} {'p95 ms':>7} {'map ms':>7} {'map mean':>8}")
+            f"{'track ms':>9} {'p95 ms':>7} {'map ms':>7} {'map mean':>8} {'ATE %path':>9} "
+            f"{'1st pose':>8}")
 
 
 def format_row(r: dict) -> str:
     """One line of the text table: ATE over all segments (several segments are only
     indicative, each having its own scale), tracking median and p95 ms, mapping median and
-    mean ms."""
+    mean ms, the ATE in % of the path's length and the index of the first frame with a
+    pose."""
     thesis = THESIS_NAMES.get(r['config'], r.get('align', '').upper() + ' ATE')
     label = f"{r['config']} ({thesis})"
     extra = [f"world {r['world_seed']}" if r.get("world_seed") is not None else "",
@@ -316,8 +332,11 @@ def format_row(r: dict) -> str:
     def num(x, fmt):
         return format("n/a" if x is None else format(x, fmt), f">{fmt.split('.')[0]}")
 
+    path = r.get("path_length_m")
+    percent = None if not path or r["ate_rmse_m"] is None else 100.0 * r["ate_rmse_m"] / path
     return (f"{r['sequence']:<26} {label:<22} {r['tracked']:>4}/{r['frames']:<4} "
             f"{num(r['ate_rmse_m'], '11.4f')} {r['segments']:>4} "
             f"{num(r['track_ms_median'], '9.2f')} {num(r['track_ms_p95'], '7.2f')} "
             f"{num(r['mapping_ms_median'], '7.2f')} "
-            f"{num(r['mapping_ms_mean'], '8.2f')}")
+            f"{num(r['mapping_ms_mean'], '8.2f')} {num(percent, '9.2f')} "
+            f"{num(r.get('first_pose_frame'), '8.0f')}")

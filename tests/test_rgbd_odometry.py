@@ -14,7 +14,8 @@ from sdvl.cli import main
 from sim.metrics import evaluate
 from sim.synth.flight import synthetic_sequence
 from sim.trajectory import Trajectory
-from vo.rgbd_odometry import RgbdConfig, RgbdOdometry, keypoint_depth
+from vo.depth_seeds import corner_depth
+from vo.rgbd_odometry import RgbdConfig, RgbdOdometry
 from vo.rigid_ransac import motion_covariance, ransac_rigid, rigid_fit
 
 
@@ -86,7 +87,7 @@ def test_keypoint_depth_skips_holes_and_edges():
     depth[2, 2] = 0.0
     depth[4, 4] = 2.1  # noise: the median ignores it
     px = np.array([[4.2, 4.4], [3.0, 2.0], [5.6, 5.0], [8.0, 5.0]])
-    np.testing.assert_array_equal(keypoint_depth(depth, px, 0.1), [2.0, 0.0, 0.0, 4.0])
+    np.testing.assert_array_equal(corner_depth(depth, px, 0.1), [2.0, 0.0, 0.0, 4.0])
 
 
 @pytest.fixture(scope="module")

@@ -178,6 +178,19 @@ class TrackerConfig:
     match_max_level: int = 2
     min_inlier_probability: float = 0.1
 
+    # depth (issue 30): given a depth map registered to the image (metres along the optical
+    # axis, 0 = none), a map starts on that one frame (metric, no two-view initialisation) and
+    # a new keyframe's points start at their measured inverse depth; off: depth is ignored
+    depth: bool = True
+    # the depth camera's rms error over the squared depth (1/m): stereo and structured-light
+    # sensors measure disparity, so sigma_z = z^2 sigma_d / (f b) and the inverse depth's sigma
+    # is this constant; 0.004 covers a D435 at 848x480 (0.0036) and a Kinect v1 (0.0016 plus
+    # 1/8 px disparity steps)
+    depth_noise_per_m2: float = 0.004
+    # a corner's depth (median of its 3x3 pixels) is used only where those span at most this
+    # fraction of it: corners sit on depth edges, where a pixel off is far off
+    depth_edge_rel: float = 0.1
+
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -196,6 +209,8 @@ class TrackerConfig:
             raise InputError(f"matcher must be 'patch' or 'orb', not {self.matcher!r}")
         if not 0 <= self.orb_max_distance <= 256:
             raise InputError("orb_max_distance must be between 0 and 256")
+        if not self.depth_noise_per_m2 > 0 or not self.depth_edge_rel >= 0:
+            raise InputError("depth_noise_per_m2 must be positive and depth_edge_rel >= 0")
         if self.grid_cell < 8 or self.max_matches < 6 or self.max_keyframes < 3:
             raise InputError("grid_cell >= 8, max_matches >= 6 and max_keyframes >= 3 required")
 

@@ -132,6 +132,8 @@ class Frame:
         # the information of the tracked pose's twist (left perturbation of T_c_w, normalised
         # image plane at unit weight; None: not tracked), a keyframe's BA prior
         self.pose_info: np.ndarray | None = None
+        # the depth map registered to this image (vo.depth_seeds), until mapping has used it
+        self.depth: np.ndarray | None = None
 
     @property
     def T_w_c(self) -> np.ndarray:

@@ -1,6 +1,6 @@
 """Starting a map (thesis 6.6.1): feeding frames to the initialiser, the poses given before the
 map exists (while the camera is at rest), and the initial map built from the initialiser's two
-views."""
+views; or, with depth (issue 30), the map of one frame and its measured depths."""
 
 from __future__ import annotations
 
@@ -11,9 +11,11 @@ import numpy as np
 from calib.camera import CameraModel
 from vo.config import TrackerConfig
 from vo.depth_filter import converged
+from vo.depth_seeds import DepthSeeds, depth_seeds
 from vo.frame import Frame
 from vo.initialization import Initializer, InitialMap, InitOutcome
 from vo.map import CONVERGED, Map
+from vo.mapping import Mapper
 from vo.matcher import inverse_depth_sigma
 from vo.result import FrameResult, Quality, ms_since
 
@@ -97,6 +99,37 @@ def build_initial_map(map_: Map, ref: Frame, cur: Frame, init: InitialMap, px_an
         map_.obs.add(slot, ids, init.px_ref, level)
         cur.set_features(ids, init.px_cur, level.copy())
         map_.add_keyframe(cur)
+    return n
+
+
+def seeds_for_map(frame: Frame, mapper: Mapper, config: TrackerConfig) -> DepthSeeds | None:
+    """The points a map started from frame's depth map alone would have: one corner per grid
+    cell (as on a new keyframe) with a measured depth; None when fewer than init_min_inliers
+    (a blank view, or the scene out of the depth camera's range)."""
+    u, v, level = mapper.new_features(frame, np.zeros((0, 2)))
+    px = np.column_stack((u, v))
+    seeds = depth_seeds(frame.depth, px, level, frame.camera.unproject(px), config)
+    return seeds if len(seeds) >= config.init_min_inliers else None
+
+
+def build_depth_map(map_: Map, frame: Frame, seeds: DepthSeeds, config: TrackerConfig) -> int:
+    """A map of one keyframe, `frame` (its camera is the world frame), and the points at their
+    measured depths: metric from the first frame, no two-view initialisation. As the two-view
+    map's points, they are candidates that tracking uses at once and the depth filter goes on
+    refining (converging them at their first update when the sensor's sigma is small enough).
+    Returns the number of points."""
+    pts = map_.points
+    frame.T_c_w = np.eye(4)
+    frame.depth = None
+    n = len(seeds)
+    with map_.lock:
+        slot = map_.add_keyframe(frame)
+        ids = pts.add(slot, seeds.px[:, 0], seeds.px[:, 1], seeds.level, seeds.f, seeds.rho,
+                      seeds.sigma, np.full(n, 2.0 * seeds.rho.max()), config.seed_a,
+                      config.seed_b, np.eye(4))
+        pts.n_updates[ids] = config.candidate_min_updates
+        frame.set_features(ids, seeds.px, seeds.level)
+        map_.obs.add(slot, ids, seeds.px, seeds.level)
     return n
 
 

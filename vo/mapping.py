@@ -13,6 +13,7 @@ from calib.camera import unproject_pixel
 from vo.bundle_adjustment import local_ba
 from vo.config import TrackerConfig
 from vo.depth_filter import linearity_index, update_seed
+from vo.depth_seeds import measured_inverse_depth
 from vo.frame import Frame
 from vo.initialization import best_per_cell
 from vo.map import CANDIDATE, CONVERGED, Map
@@ -235,6 +236,7 @@ class Mapper:
         """Insert `frame` as a keyframe, seed candidates in its empty cells, cap keyframes."""
         cfg = self.config
         pts = self.map.points
+        depth, frame.depth = frame.depth, None  # a keyframe keeps no depth map
         with self.map.lock:
             slot = self.map.add_keyframe(frame)
         self.n_keyframes_added += 1
@@ -243,13 +245,14 @@ class Mapper:
         if len(depths) == 0:
             return
         d_med, d_min = float(np.median(depths)), float(np.min(depths))
-        u, v, level = self._new_features(frame, np.vstack((frame.feat_px, occupied_uv)))
+        u, v, level = self.new_features(frame, np.vstack((frame.feat_px, occupied_uv)))
         if len(u) == 0:
             return
         f = self.camera.unproject(np.column_stack((u, v)))
         T_w_new = frame.T_w_c
-        rho = np.full(len(u), np.nan)
-        sigma = np.full(len(u), np.nan)
+        rho, sigma = np.full(len(u), np.nan), np.full(len(u), np.nan)
+        if depth is not None:  # measured depths; the other features are searched as before
+            rho, sigma = measured_inverse_depth(depth, np.column_stack((u, v)), f, cfg)
         rho0 = 1.0 / d_med
         prior = (rho0, cfg.seed_sigma_ratio * rho0, cfg.seed_a, cfg.seed_b, 1.0 / d_min)
         desc, desc_state = self._seed_depths(frame, slot, (u, v, level, f, rho, sigma), prior)
@@ -357,7 +360,7 @@ class Mapper:
                     self.map.keyframes[s].position - frame.position))]
         return slots
 
-    def _new_features(self, frame: Frame, occupied_uv: np.ndarray):
+    def new_features(self, frame: Frame, occupied_uv: np.ndarray):
         """One corner per empty grid cell, the best Shi-Tomasi score over all levels."""
         cfg = self.config
         c = frame.corners(cfg.fast_threshold)

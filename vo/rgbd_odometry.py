@@ -19,6 +19,7 @@ import numpy as np
 
 from calib.camera import CameraModel
 from sdvl.tables import dataclass_from_table, read_toml
+from vo.depth_seeds import corner_depth
 from vo.result import FrameResult, Quality, ms_since
 from vo.rigid_ransac import motion_covariance, ransac_rigid
 from vo.se3 import adjoint, orthonormalized
@@ -110,7 +111,7 @@ class RgbdOdometry:
         if not keypoints:
             return _Keyed(np.zeros((0, 128), np.float32), np.zeros((0, 3)))
         px = np.array([k.pt for k in keypoints])
-        z = keypoint_depth(depth, px, self.config.depth_edge_rel)
+        z = corner_depth(depth, px, self.config.depth_edge_rel)
         ok = z > 0
         rays = self.camera.unproject(px[ok])
         return _Keyed(descriptors[ok], rays / rays[:, 2:3] * z[ok, None])
@@ -163,19 +164,6 @@ class RgbdOdometry:
             self.ref = None
         return FrameResult(t, None, Quality.LOST if lost else Quality.BAD, n_matches=matches,
                            n_attempts=attempts, n_inliers=inliers)
-
-
-def keypoint_depth(depth: np.ndarray, px: np.ndarray, edge_rel: float) -> np.ndarray:
-    """Depth (m) at each keypoint (N,): the median of its 3x3 pixel neighbourhood; 0 where
-    that has holes or spans more than `edge_rel` of it (a depth edge)."""
-    h, w = depth.shape
-    c = np.clip(np.rint(px[:, 0]).astype(np.int64), 1, w - 2)
-    r = np.clip(np.rint(px[:, 1]).astype(np.int64), 1, h - 2)
-    patch = np.stack([depth[r + dr, c + dc] for dr in (-1, 0, 1) for dc in (-1, 0, 1)])
-    patch = np.where(np.isfinite(patch), patch, 0.0)
-    z = np.median(patch, axis=0)
-    ok = (patch.min(axis=0) > 0) & (patch.max(axis=0) - patch.min(axis=0) <= edge_rel * z)
-    return np.where(ok, z, 0.0)
 
 
 def ratio_matches(matcher, query: np.ndarray, train: np.ndarray,

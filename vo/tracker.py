@@ -5,10 +5,12 @@ svo/src/frame_handler_mono.cpp): while INITIALIZING, frames go to the initialise
 builds a map (vo.map_start); while TRACKING, each frame is tracked from the last one
 (vo.frame_tracking); once tracking is lost the tracker is RELOCALIZING against the map
 (vo.relocalization) while a new map is initialised on the side, which replaces the old one if
-relocalisation keeps failing. Each frame tracked against the map then goes to mapping (6.6),
-run after the frame (sequential, reproducible), in its own thread (vo.mapping_thread) or
-stepped by the caller (vo.stepped_mapping, a test hook); a frame tracked while frames wait for
-mapping is not rated good.
+relocalisation keeps failing. With depth maps (issue 30; `depth` in the config) a map starts
+on one frame from its measured depths instead (vo.map_start.build_depth_map), metric, and so
+does a new map while lost; nothing else in tracking changes. Each frame tracked against the
+map then goes to mapping (6.6), run after the frame (sequential, reproducible), in its own
+thread (vo.mapping_thread) or stepped by the caller (vo.stepped_mapping, a test hook); a
+frame tracked while frames wait for mapping is not rated good.
 """
 
 from __future__ import annotations
@@ -22,13 +24,14 @@ from calib.camera import CameraModel
 from sdvl.errors import InputError
 from vo import bundle_adjustment
 from vo.config import TrackerConfig
+from vo.depth_seeds import DepthSeeds, check_depth_map
 from vo.frame import Frame
 from vo.frame_tracking import FrameTracking
 from vo.initialization import Initializer, InitialMap, InitOutcome
 from vo.keyframe_policy import KeyframePolicy
 from vo.map import Map
 from vo.map_matching import MapMatcher
-from vo.map_start import MapStart, build_initial_map, init_step
+from vo.map_start import MapStart, build_depth_map, build_initial_map, init_step, seeds_for_map
 from vo.mapping import Mapper
 from vo.mapping_control import InlineMapping, MappingBacklog
 from vo.mapping_thread import ThreadedMapping
@@ -47,7 +50,7 @@ class TrackerState(Enum):
 
 
 class Tracker:
-    """Monocular SDVL tracker for one camera."""
+    """SDVL tracker for one camera, monocular or with a depth camera."""
 
     def __init__(self, camera: CameraModel, config: TrackerConfig | None = None,
                  threaded: bool = False, stepped_mapping: bool = False):
@@ -65,6 +68,9 @@ class Tracker:
         else:
             self.mapping = InlineMapping()
         self._frame_id = 0
+        # set by the first depth map (with config.depth): from then on maps start only from
+        # depth, so every map is metric (a monocular one's scale would be arbitrary)
+        self.depth_mode = False
         self.reprojector = Reprojector(camera, self.config)
         self._reset()
 
@@ -125,8 +131,11 @@ class Tracker:
             last.T_c_w = bundle_adjustment.follow(last.T_c_w, last.feat_point, self.map, moved)
 
     # ------------------------------------------------------------------ per frame
-    def process(self, image: np.ndarray, t: float) -> FrameResult:
-        """Track one grey uint8 image taken at time t (seconds)."""
+    def process(self, image: np.ndarray, t: float,
+                depth: np.ndarray | None = None) -> FrameResult:
+        """Track one grey uint8 image taken at time t (seconds), with its depth map when the
+        camera has one (float metres along the optical axis, registered to the image, 0 or
+        NaN = none; vo.depth_seeds)."""
         image = np.asarray(image)
         if image.dtype != np.uint8 or image.ndim != 2:
             raise InputError(f"tracker needs a 2-D uint8 grey image, got {image.dtype} "
@@ -134,17 +143,21 @@ class Tracker:
         if image.shape != (self.camera.height, self.camera.width):
             raise InputError(f"image is {image.shape[1]}x{image.shape[0]}, camera is "
                              f"{self.camera.width}x{self.camera.height}")
+        if depth is not None:
+            depth = check_depth_map(depth, self.camera.width, self.camera.height)
         self.mapping.before_frame()
         try:
-            return self._process(image, float(t))
+            return self._process(image, float(t), depth if self.config.depth else None)
         finally:
             self.mapping.frame_tracked()
 
-    def _process(self, image: np.ndarray, t: float) -> FrameResult:
+    def _process(self, image: np.ndarray, t: float, depth: np.ndarray | None) -> FrameResult:
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
         unmapped = self.mapping.unmapped()
         frame = Frame(self._frame_id, float(t), image, self.camera, self.config.pyramid_levels)
+        frame.depth = depth
+        self.depth_mode = self.depth_mode or depth is not None
         self._frame_id += 1
         self.map.points.newest_frame = frame.id
         timings["pyramid"] = ms_since(t0)
@@ -180,6 +193,8 @@ class Tracker:
             return self.tracking.track(frame, timings)
 
     def _initialize(self, frame: Frame, timings: dict[str, float]) -> tuple[FrameResult, bool]:
+        if self.depth_mode:
+            return self._start_from_depth(frame, timings)
         found = self.start.step(frame, timings)
         if isinstance(found, FrameResult):
             return found, False
@@ -195,6 +210,29 @@ class Tracker:
         self.state = TrackerState.TRACKING
         return self.tracking.start(frame, n)
 
+    def _start_from_depth(self, frame: Frame,
+                          timings: dict[str, float]) -> tuple[FrameResult, bool]:
+        """A new map from frame's depth map alone (frame is its first keyframe, a new
+        segment); no pose while the frame has no depth map or too few corners with depth."""
+        seeds = self._depth_seeds(frame, timings)
+        if seeds is None:
+            return FrameResult(frame.t, None, Quality.INITIALIZING), False
+        return self._start_depth_map(frame, seeds), True
+
+    def _depth_seeds(self, frame: Frame, timings: dict[str, float]) -> DepthSeeds | None:
+        """The points of a map started on frame from its depth map (None: no depth map, or
+        too few corners with depth)."""
+        t0 = time.perf_counter()
+        seeds = None if frame.depth is None else seeds_for_map(frame, self.mapper, self.config)
+        timings["init"] = ms_since(t0)
+        return seeds
+
+    def _start_depth_map(self, frame: Frame, seeds: DepthSeeds) -> FrameResult:
+        """A new map of frame and its depth seeds; frame's result (a new segment)."""
+        n = build_depth_map(self.map, frame, seeds, self.config)
+        self.state = TrackerState.TRACKING
+        return self.tracking.start(frame, n)
+
     def _on_lost(self) -> None:
         """Tracking is lost: relocalise (6.9) against the map from now on (building a new
         map on the side when re-initialisation is allowed), or start a new map at once when
@@ -205,7 +243,8 @@ class Tracker:
         if cfg.relocalize and self.map.keyframes:
             self.state = TrackerState.RELOCALIZING
             self.view_since = None
-            self.lost_init = Initializer(self.camera, cfg) if cfg.reinit_when_lost else None
+            self.lost_init = (Initializer(self.camera, cfg)
+                              if cfg.reinit_when_lost and not self.depth_mode else None)
         elif cfg.reinit_when_lost:
             self._reset()
 
@@ -224,6 +263,8 @@ class Tracker:
         once relocalisation has failed for reinit_after_lost_frames frames since the view
         became usable (the initialiser could first track features into a frame: a covered
         lens does not count)."""
+        if self.depth_mode:
+            return self._restart_from_depth(frame, timings, lost)
         init = self.lost_init
         if init is None:
             return lost, False
@@ -235,3 +276,18 @@ class Tracker:
             return lost, False
         self._reset()
         return self._start_map(init.ref, frame, outcome), True
+
+    def _restart_from_depth(self, frame: Frame, timings: dict[str, float],
+                            lost: FrameResult) -> tuple[FrameResult, bool]:
+        """With depth, a new map from a frame's depth replaces the old one once relocalisation
+        has failed for reinit_after_lost_frames frames since a frame could start one (enough
+        corners with depth: a covered lens does not count)."""
+        seeds = self._depth_seeds(frame, timings) if self.config.reinit_when_lost else None
+        if seeds is None:
+            return lost, False
+        if self.view_since is None:
+            self.view_since = frame.id
+        if frame.id - self.view_since < self.config.reinit_after_lost_frames:
+            return lost, False
+        self._reset()
+        return self._start_depth_map(frame, seeds), True
