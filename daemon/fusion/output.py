@@ -20,13 +20,14 @@ def inflation(cfg: FusionConfig, quality: str) -> float:
     return getattr(cfg, key) if key else 1.0
 
 
-def attitude_noise(cfg: FusionConfig, quality: str) -> np.ndarray:
-    """Covariance of the autopilot's attitude (compass heading noisier than the tilt) plus a
-    floor for the tracker's rotation (rad^2, N frame)."""
+def attitude_noise(cfg: FusionConfig, quality: str, gap_var: float = 0.0) -> np.ndarray:
+    """Covariance of the autopilot's attitude (compass heading noisier than the tilt), plus
+    `gap_var` (rad^2: what the vehicle may have turned since or between its samples,
+    attitude.py), plus a floor for the tracker's rotation (rad^2, N frame)."""
     tilt, heading, vo = np.radians([cfg.attitude_std_deg, cfg.heading_std_deg,
                                     cfg.vo_rotation_std_deg])
     return (np.diag([tilt**2, tilt**2, heading**2])
-            + np.eye(3) * vo**2 * inflation(cfg, quality))
+            + np.eye(3) * (vo**2 * inflation(cfg, quality) + gap_var))
 
 
 def quality_percent(position_cov: np.ndarray, good_std_m: float) -> int:
