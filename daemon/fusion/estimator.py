@@ -40,7 +40,7 @@ from daemon.fusion.attitude import AttitudeTrack
 from daemon.fusion.clock import ClockMap
 from daemon.fusion.config import FusionConfig
 from daemon.fusion.imu_gate import ImuGate
-from daemon.fusion.imu_median import ImuMedian
+from daemon.fusion.imu_hampel import ImuHampel
 from daemon.fusion.map_fusion import FrameInput, MapFusion, Readings, frame_input
 from daemon.fusion.output import Continuity, attitude_noise, build_estimate, horizontal_std
 from daemon.fusion.repeats import Repeats
@@ -89,7 +89,7 @@ class FusionEstimator:
         self._choices: dict[str, SourceChoice] = {}
         self._last_baro_t = -math.inf  # time of the last barometer sample fused
         self.imu_gate = ImuGate(report)
-        self.imu_median = ImuMedian()
+        self.imu_hampel = ImuHampel()
         self.repeats = Repeats()
         self.dropped_stamps = 0
         self._inbox: deque[tuple[float, object]] = deque(maxlen=INBOX_LIMIT)
@@ -267,12 +267,12 @@ class FusionEstimator:
                 self._add_stream("baro", sample, BARO_PRIORITY)
 
     def _add_imu(self, sample: Imu) -> None:
-        """An IMU sample through the spike gate and the running median (imu_median.py)."""
+        """An IMU sample through the spike gate and the Hampel filter (imu_hampel.py)."""
         if not self.imu_gate.admit(sample.source, sample.t, sample.accel):
             return
-        median = self.imu_median.push(sample.source, sample.t, sample.accel)
-        if median is not None:
-            t, accel = median
+        judged = self.imu_hampel.push(sample.source, sample.t, sample.accel)
+        if judged is not None:
+            t, accel = judged
             self.rest.on_imu(t, accel)
             self._add_stream("imu", Imu(t, accel, sample.source), IMU_PRIORITY)
 

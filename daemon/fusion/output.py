@@ -52,10 +52,14 @@ def build_estimate(f: NavFilter, cfg: FusionConfig, *, R_l_b: np.ndarray, rot_co
     filter's, with nothing added: the autopilots apply their own floors (VISO_POS_M_NSE,
     EKF2_EVP_NOISE). It describes errors in the local frame, whose north is the autopilot's
     compass north, the frame the autopilot fuses our poses in, so the compass bias is not in
-    it."""
+    it. While the tracker's updates are being rejected, the position's covariance also covers
+    the last disagreement between the map and the filter: either may be the one gone wrong."""
     factor = inflation(cfg, state)
     pose_cov = np.zeros((6, 6))
     pose_cov[:3, :3] = factor * f.P[POS, POS]
+    if f.vo_disagreement:
+        apart = f.vo_disagreement[-1][1]
+        pose_cov[:3, :3] += np.outer(apart, apart)
     pose_cov[3:, 3:] = factor * rot_cov
     vel_cov = np.zeros((6, 6))
     vel_cov[:3, :3] = factor * (R_l_b.T @ f.P[VEL, VEL] @ R_l_b)
