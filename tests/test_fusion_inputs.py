@@ -110,7 +110,9 @@ def test_attitude_track_interpolates_and_times_out() -> None:
     mid = track.at(1.05)
     assert Rotation.from_matrix(mid.R_n_b).as_euler("ZYX")[0] == pytest.approx(0.1)
     assert mid.rates[2] == pytest.approx(0.1)
-    assert track.at(1.15) is track.samples[-1]
+    after = track.at(1.15)  # carried on by its rates, 0.2 rad/s for 50 ms
+    assert Rotation.from_matrix(after.R_n_b).as_euler("ZYX")[0] == pytest.approx(0.21)
+    assert track.at(1.19).gap_var > after.gap_var > 0.0 and mid.gap_var > 0.0
     assert track.at(1.3) is None and track.at(0.8) is None
 
 
