@@ -69,7 +69,7 @@ def test_a_failing_stream_is_dropped_said_and_taken_back_when_clean():
 
 def judge(samples, order=None, hz: float = 50.0):
     """Push (index order) samples of one stream at `hz`; {time index: specific force fused}."""
-    hampel, out = ImuHampel(), {}
+    hampel, out = ImuHampel(keep_s=1.0), {}
     for k in order if order is not None else range(len(samples)):
         judged = hampel.push("SCALED_IMU", k / hz, samples[k])
         if judged is not None:

@@ -89,7 +89,7 @@ class FusionEstimator:
         self._choices: dict[str, SourceChoice] = {}
         self._last_baro_t = -math.inf  # time of the last barometer sample fused
         self.imu_gate = ImuGate(report)
-        self.imu_hampel = ImuHampel()
+        self.imu_hampel = ImuHampel(cfg.history_s)
         self.repeats = Repeats()
         self.dropped_stamps = 0
         self._inbox: deque[tuple[float, object]] = deque(maxlen=INBOX_LIMIT)

@@ -9,7 +9,8 @@ size and passes a real step of thrust (a spike gate must hold the old value over
 its window follows); samples near it are kept as they are, so a clean stream's noise stays the
 white noise the filter assumes (the median of three is not). Each sample is judged once its
 successor is there: the filter gets the IMU one sample later, at the same instants. A sample
-that arrives after a later one (reordered on the link) is judged between its neighbours.
+that arrives after later ones (reordered or delayed on the link) is judged between its
+neighbours, as long as it is within the `keep_s` the filter can still replay.
 """
 
 from __future__ import annotations
@@ -18,21 +19,21 @@ import bisect
 
 import numpy as np
 
-KEEP = 5  # samples of a stream kept: room for one arriving out of order
 FLOOR = 1.0  # m/s^2: 20 ms of it is 2 cm/s; a filtered IMU's vibration is replaced harmlessly
 MAX_GAP_S = 0.1  # samples further apart are not neighbours (the fusion's imu_timeout_s)
 
 
 class _Stream:
-    """A stream's newest samples in time order."""
+    """A stream's samples of the last `keep_s` seconds in time order."""
 
-    def __init__(self):
+    def __init__(self, keep_s: float):
+        self.keep_s = keep_s
         self.times: list[float] = []
         self.accels: list[np.ndarray] = []
 
     def insert(self, t: float, accel: np.ndarray) -> int | None:
         """Insert a sample in time order; its index, or None when it repeats a time or is older
-        than every sample kept."""
+        than every sample kept (which are those of the last keep_s)."""
         if self.times and t - self.times[-1] > MAX_GAP_S:
             self.times, self.accels = [], []
         i = bisect.bisect_left(self.times, t)
@@ -40,10 +41,10 @@ class _Stream:
             return None
         self.times.insert(i, t)
         self.accels.insert(i, accel)
-        if len(self.times) > KEEP:
-            del self.times[0], self.accels[0]
-            i -= 1
-        return i
+        old = min(bisect.bisect_left(self.times, self.times[-1] - self.keep_s), i - 1)
+        if old > 0:
+            del self.times[:old], self.accels[:old]
+        return i - max(old, 0)
 
     def judged(self, i: int) -> tuple[float, np.ndarray] | None:
         """Sample i, or the median of it and its neighbours when it is further than FLOOR
@@ -62,14 +63,15 @@ class ImuHampel:
     judged, or None: while a stream has fewer than three neighbouring samples, and for a sample
     older than all its stream keeps."""
 
-    def __init__(self):
+    def __init__(self, keep_s: float):
+        self.keep_s = keep_s
         self.late = 0
         self._streams: dict[str, _Stream] = {}
 
     def push(self, source: str, t: float, accel: np.ndarray) -> tuple[float, np.ndarray] | None:
         """Add a sample of `source` at time `t`; the sample it lets be judged, if any: its
         predecessor when it is the newest, else itself between its neighbours."""
-        stream = self._streams.setdefault(source, _Stream())
+        stream = self._streams.setdefault(source, _Stream(self.keep_s))
         i = stream.insert(t, np.asarray(accel, float))
         if i is None:
             self.late += 1
