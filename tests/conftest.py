@@ -28,3 +28,16 @@ def _signal_handlers_restored():
     yield
     for sig, handler in saved.items():
         signal.signal(sig, handler)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _frame_cache_of_this_run(tmp_path_factory):
+    """Rendered flights are kept in this run's temporary folder, shared by the xdist workers,
+    not in the user's cache."""
+    before = os.environ.get("SDVL_CACHE_DIR")
+    os.environ["SDVL_CACHE_DIR"] = str(tmp_path_factory.getbasetemp().parent / "frame-cache")
+    yield
+    if before is None:
+        del os.environ["SDVL_CACHE_DIR"]
+    else:
+        os.environ["SDVL_CACHE_DIR"] = before

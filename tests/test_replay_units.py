@@ -27,7 +27,7 @@ from sim.replay.flight import (
     vehicle_trajectory,
 )
 from sim.replay.harness import choose_estimator, run_replay
-from sim.replay.replay_run import ReplayRun
+from sim.replay.replay_run import ReplayRun, since_process_start
 from sim.replay.report import KEYS, build_report, received_poses, start_aligned, velocity_at
 from sim.sequence import ImuSamples
 from sim.synth.sensors import SensorNoise
@@ -213,3 +213,10 @@ def test_fusion_only_for_sequences_that_know_down_and_only_in_realtime():
     assert not choose_estimator(Config(), synthetic, "pass-through").fusion.enabled
     with pytest.raises(InputError, match="realtime"):
         run_replay(handheld, choose_estimator(Config(), handheld, "fusion"), realtime=False)
+
+
+def test_time_since_the_process_started():
+    """The replay's start-up figure: this process is older than the test, and not by days."""
+    age = since_process_start(time.monotonic())
+    assert age is not None and 0.0 < age < 3600.0
+    assert since_process_start(time.monotonic() - 1.0) == pytest.approx(age - 1.0, abs=0.05)

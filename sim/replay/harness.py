@@ -39,7 +39,7 @@ from sim.replay.preflight import WithPreflight, held_before
 from sim.replay.prerender import prerendered, renders_on_the_fly
 from sim.replay.progress import Progress
 from sim.replay.recording import Recorder
-from sim.replay.replay_run import FirstFrames, ReplayRun, aligned_time
+from sim.replay.replay_run import FirstFrames, ReplayRun, aligned_time, since_process_start
 from sim.trajectory import Trajectory
 
 SETTLE_S = 0.3  # after the last frame, for the last messages to arrive
@@ -228,4 +228,5 @@ def _replay(sequence: object, config: Config, plan: ReplayPlan, show: Progress,
                "skipped_duplicate": stats.skipped_duplicate,
                "aligned_t": aligned_time(service.estimator, recorder.rows)},
         without=plan.without, autopilot=outcome,
-        flight_start=source.flight_start)
+        flight_start=source.flight_start,
+        startup_s=since_process_start(recorder.rows[0]["t_capture"]) if recorder.rows else None)

@@ -3,6 +3,8 @@ its report scores (ReplayRun), for the real-time harness and the lockstep loop a
 
 from __future__ import annotations
 
+import os
+import time
 from dataclasses import dataclass, field
 
 from sim.replay.autopilot_process import AutopilotOutcome, VisionMessage
@@ -54,6 +56,20 @@ class ReplayRun:
     compass_bias_deg: float | None = None  # of the simulated autopilot's attitude
     autopilot: AutopilotOutcome | None = None  # its record (not in lockstep)
     flight_start: tuple[float, float] | None = None  # (t_source, t_capture): its first frame
+    startup_s: float | None = None  # from the process's start to its first frame tracked
+
+
+def since_process_start(t_monotonic: float) -> float | None:
+    """Seconds from this process's start (Linux /proc: its start in clock ticks after boot) to
+    the time.monotonic() time `t_monotonic`; None where /proc does not tell."""
+    try:
+        with open("/proc/self/stat") as f:
+            started = int(f.read().rsplit(")", 1)[1].split()[19]) / os.sysconf("SC_CLK_TCK")
+        with open("/proc/uptime") as f:
+            age = float(f.read().split()[0]) - started
+    except (OSError, ValueError, IndexError):
+        return None
+    return t_monotonic - (time.monotonic() - age)
 
 
 def aligned_time(estimator: object, rows: list[dict]) -> float | None:

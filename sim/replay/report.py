@@ -59,6 +59,7 @@ KEYS = {
     **AUTOPILOT_KEYS,
     "wall_s": "replay wall time (after warm-up), s",
     "warmup_s": "tracker warm-up before the replay started, s",
+    "startup_s": "from the command to the first frame tracked, s (None in lockstep)",
     "received_file": "TUM file of the received poses (sequence time)",
     "groundtruth_file": "TUM file of the ground truth they are scored against",
 }
@@ -266,7 +267,7 @@ def build_report(run: ReplayRun, out_dir: Path | None
               "skipped_stale": run.stats.get("skipped_stale", 0),
               **scores, **timing(run, received), "resets": received.resets,
               **autopilot_scores(run.autopilot, run.flight_start, run.flight, run.received),
-              "wall_s": run.wall_s, "warmup_s": run.warmup_s}
+              "wall_s": run.wall_s, "warmup_s": run.warmup_s, "startup_s": run.startup_s}
     return {key: report[key] for key in KEYS}, aligned, reference
 
 
@@ -282,7 +283,9 @@ def format_report(r: dict) -> str:
     """Human-readable lines of a report."""
     return "\n".join([
         f"replay     {r['sequence']} ({r['mode']}, {r['estimator']}), {r['wall_s']:.1f} s after "
-        f"{r['warmup_s']:.1f} s tracker warm-up",
+        f"{r['warmup_s']:.1f} s tracker warm-up"
+        + ("" if r["startup_s"] is None else
+           f"; first frame tracked {r['startup_s']:.1f} s after the command"),
         f"frames     {r['frames']} offered, {r['processed']} processed, {r['dropped']} dropped "
         f"({_pct(r['drop_fraction'])})",
         f"tracked    {r['tracked']} ({_pct(r['tracked_fraction'])}), "
