@@ -40,7 +40,6 @@ from daemon.fusion.attitude import AttitudeTrack
 from daemon.fusion.clock import ClockMap
 from daemon.fusion.config import FusionConfig
 from daemon.fusion.imu_gate import ImuGate
-from daemon.fusion.imu_hampel import ImuHampel
 from daemon.fusion.map_fusion import FrameInput, MapFusion, Readings, frame_input
 from daemon.fusion.output import Continuity, attitude_noise, build_estimate, horizontal_std
 from daemon.fusion.repeats import Repeats
@@ -89,7 +88,6 @@ class FusionEstimator:
         self._choices: dict[str, SourceChoice] = {}
         self._last_baro_t = -math.inf  # time of the last barometer sample fused
         self.imu_gate = ImuGate(report)
-        self.imu_hampel = ImuHampel(cfg.history_s)
         self.repeats = Repeats()
         self.dropped_stamps = 0
         self._inbox: deque[tuple[float, object]] = deque(maxlen=INBOX_LIMIT)
@@ -267,14 +265,10 @@ class FusionEstimator:
                 self._add_stream("baro", sample, BARO_PRIORITY)
 
     def _add_imu(self, sample: Imu) -> None:
-        """An IMU sample through the spike gate and the Hampel filter (imu_hampel.py)."""
-        if not self.imu_gate.admit(sample.source, sample.t, sample.accel):
-            return
-        judged = self.imu_hampel.push(sample.source, sample.t, sample.accel)
-        if judged is not None:
-            t, accel = judged
-            self.rest.on_imu(t, accel)
-            self._add_stream("imu", Imu(t, accel, sample.source), IMU_PRIORITY)
+        """An IMU sample through the spike gate (imu_gate.py)."""
+        if self.imu_gate.admit(sample.source, sample.t, sample.accel):
+            self.rest.on_imu(sample.t, sample.accel)
+            self._add_stream("imu", sample, IMU_PRIORITY)
 
     def _add_stream(self, kind: str, sample: Imu | Baro, priority: dict[str, int]) -> None:
         """Fuse one stream of a kind: the preferred one that streams steadily (source_choice)."""
