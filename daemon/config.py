@@ -38,6 +38,9 @@ class CameraConfig:
     height: int = bounded(0, 0, MAX_IMAGE_SIDE, why="0 keeps the device's default")
     fps: float = bounded(30.0, above=0, high=1000)
     realtime: bool = True
+    # the source's depth maps go to the tracker (a depth camera, a sequence with depth):
+    # metric poses from the first frame; false: monocular even where depth is there
+    depth: bool = False
     reconnect_min_s: float = bounded(0.5, above=0, high=3600)
     reconnect_max_s: float = bounded(8.0, above=0, high=3600)
     # longer than a slow device's first frame (a few seconds), shorter than WatchdogSec

@@ -109,8 +109,12 @@ def tracker_factory(config: Config, camera: CameraModel) -> Callable[[Frame], ob
 
     def make(frame: Frame) -> object:
         height, width = frame.image.shape[:2]
-        return SceneTracker(Tracker(fit_camera(camera, width, height), tracker_config,
-                                    threaded=config.service.mapping_thread))
+        tracker = Tracker(fit_camera(camera, width, height), tracker_config,
+                          threaded=config.service.mapping_thread)
+        # a depth camera's maps start only from depth, also while its first frames have none
+        # (on the ground, nearer than its minimum range): never a monocular map of unknown scale
+        tracker.depth_mode = config.camera.depth and tracker_config.depth
+        return SceneTracker(tracker)
 
     return make
 

@@ -37,6 +37,13 @@ class TrackedFrame:
     t_done: float  # monotonic time the estimate was ready
 
 
+def track(tracker: object, frame: Frame) -> object:
+    """The tracker's result for a frame, with its depth map when it has one."""
+    if frame.depth is None:
+        return tracker.process(frame.image, frame.t_source)
+    return tracker.process(frame.image, frame.t_source, frame.depth)
+
+
 class HandoffGate:
     """Holds the tracker's mapping thread back from a frame's mapping step until the loop has
     handled that frame's estimate. Mapping is background work; started the moment tracking
@@ -121,7 +128,7 @@ class TrackingThread(threading.Thread):
         t_start = self._busy_since = time.monotonic()
         start = time.perf_counter()
         try:
-            result = self.tracker.process(frame.image, frame.t_source)
+            result = track(self.tracker, frame)
         except Exception as exc:
             self._failed("tracker", exc)
             self.close_tracker()  # rebuilt on the next frame: a new map

@@ -63,6 +63,7 @@ class ScaleSource(enum.Enum):
     PRIOR = "prior"  # the wide prior: the filter's own scale is not trusted (forget_scale)
     GIVEN = "given"  # start_segment's, e.g. from the rangefinder
     FIT = "fit"  # an independent fit (rescale: climb against the barometer, IMU motion)
+    METRIC = "metric"  # a map started from depth: metres, ln(scale) 0 with no variance
 
 
 class NavFilter:
@@ -140,9 +141,13 @@ class NavFilter:
         self.P = np.diag(var)
 
     def start_segment(self, p_w: np.ndarray, R_w_b: np.ndarray, R_n_b: np.ndarray,
-                      log_scale: float, scale_std: float | None = None) -> None:
+                      log_scale: float, scale_std: float | None = None,
+                      metric: bool = False) -> None:
         """A new map: clone the camera position as the anchor, fresh alignment, and the scale
-        with `scale_std` (default: the prior's)."""
+        with `scale_std` (default: the prior's); a `metric` map's scale is 1, exactly and for
+        good (ScaleSource.METRIC)."""
+        if metric:
+            log_scale, scale_std = 0.0, 0.0
         self.converged = False
         self.climb = ClimbScale()
         self.motion = self._accel_scale()
@@ -155,7 +160,8 @@ class NavFilter:
         x[THETA] = 0.0
         if scale_std is None:
             scale_std = self.cfg.scale_prior_std
-        self.scale_source = (ScaleSource.GIVEN if scale_std < self.cfg.scale_prior_std
+        self.scale_source = (ScaleSource.METRIC if metric
+                             else ScaleSource.GIVEN if scale_std < self.cfg.scale_prior_std
                              else ScaleSource.PRIOR)
         for index, std in ((LOG_SCALE, scale_std),
                            (THETA, np.radians(self.cfg.attitude_std_deg)),
@@ -307,8 +313,9 @@ class NavFilter:
         climb_speed = abs(self.x[5])
         sideways = slice(ANCHOR.start, ANCHOR.start + 2)  # a climb's height gives the scale
         Q[sideways, sideways] += np.eye(2) * cfg.vo_drift_climb_m_per_sqrt_m**2 * climb_speed * dt
-        Q[LOG_SCALE, LOG_SCALE] = (cfg.scale_walk_per_sqrt_m**2 * horizontal_speed
-                                   + cfg.scale_walk_climb_per_sqrt_m**2 * climb_speed) * dt
+        if self.scale_source is not ScaleSource.METRIC:
+            Q[LOG_SCALE, LOG_SCALE] = (cfg.scale_walk_per_sqrt_m**2 * horizontal_speed
+                                       + cfg.scale_walk_climb_per_sqrt_m**2 * climb_speed) * dt
         Q[THETA, THETA] = np.eye(3) * np.radians(cfg.alignment_walk_deg_per_sqrt_m) ** 2 * (
             speed * dt)
         Q[GROUND, GROUND] = cfg.ground_walk_m_per_sqrt_m**2 * horizontal_speed * dt
