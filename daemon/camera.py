@@ -182,6 +182,9 @@ class SequenceSource:
         frame = (float(t), t_capture, grey(np.asarray(image)))
         return frame if not self.depth else (*frame, depth)
 
+    def close(self) -> None:
+        """Nothing to release; the iterator continues if the capture thread reopens."""
+
 
 def need_depth(sequence: object) -> None:
     """InputError when camera.depth is on and the sequence has no depth maps."""
@@ -198,9 +201,6 @@ def sequence_depth(sequence: object, index: int) -> np.ndarray | UnreadableDepth
         return sequence.depth(index)
     except (InputError, OSError) as exc:
         return UnreadableDepth(str(exc))
-
-    def close(self) -> None:
-        """Nothing to release; the iterator continues if the capture thread reopens."""
 
 
 class RecordingSource(SequenceSource):

@@ -54,13 +54,32 @@ def quiet_opencv() -> None:
 def open_source(cfg: CameraConfig) -> FrameSource:
     """The frame source a camera.source string names."""
     from daemon.camera import OpenCVSource, RecordingSource, TestPatternSource
+    from daemon.realsense import is_realsense
     from daemon.recordings import open_recording
 
     if cfg.source == "testpattern":
         return TestPatternSource(cfg.width or 320, cfg.height or 240, cfg.fps)
+    if is_realsense(cfg.source):
+        return realsense_source(cfg)
     if Path(cfg.source).is_dir():
         return RecordingSource(open_recording(cfg.source, cfg.fps), realtime=cfg.realtime)
     return OpenCVSource(cfg.source, cfg.width, cfg.height, cfg.fps, cfg.realtime)
+
+
+def realsense_source(cfg: CameraConfig) -> FrameSource:
+    """A RealSense camera (daemon/realsense.py) with camera.calibration's intrinsics and
+    depth keys."""
+    from calib.camera_yaml import load_camera, load_depth_spec
+    from daemon.realsense import RealSenseSource
+    from sdvl.errors import InputError
+
+    if not cfg.calibration:
+        raise InputError(f"camera.calibration: set the path of a camera.yaml for "
+                         f"'{cfg.source}' (its colour intrinsics: rs-enumerate-devices -c)")
+    camera = fit_camera(load_camera(cfg.calibration), cfg.width, cfg.height) \
+        if cfg.width and cfg.height else load_camera(cfg.calibration)
+    return RealSenseSource(cfg.source, camera, load_depth_spec(cfg.calibration), cfg.fps,
+                           cfg.depth)
 
 
 def camera_model(cfg: CameraConfig, source: FrameSource) -> CameraModel:
