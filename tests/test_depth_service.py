@@ -11,6 +11,7 @@ import pytest
 from daemon_helpers import FakeTracker, RunningService, service_config
 from test_daemon_sources import CAMERA, tiny_sequence
 
+from calib.camera import CameraModel
 from daemon.camera import SequenceSource
 from daemon.config import Config, replace
 from daemon.frames import BadDepth, FrameCheck, UnreadableDepth
@@ -152,3 +153,32 @@ def test_replay_with_depth_publishes_metric_positions_from_the_first_frame(depth
     assert climb_truth < -0.2
     assert z[-1] - z[0] == pytest.approx(climb_truth, rel=0.1)
     assert report["nees_position"] < 3.0
+
+
+def test_obstacle_distances_from_the_depth_frames_at_their_rate():
+    camera = CameraModel(160, 120, 100.0, 100.0, 79.5, 59.5, "none", [])
+    rng = np.random.default_rng(4)
+    images = [rng.integers(0, 255, (120, 160), dtype=np.uint8) for _ in range(30)]
+    wall = np.full((120, 160), 2.0, np.float32)  # 2 m ahead of the forward camera
+    sequence = Sequence("wall", camera, 10.0 + np.arange(30) / 30.0,
+                        image_loader=lambda i: images[i], depth_loader=lambda i: wall)
+    tracker = DepthTracker()
+    tracker.camera = camera
+    with SimAutopilot(configured_options(heartbeat_hz=5)) as sim:
+        config = service_config(sim.url, camera={"depth": True},
+                                obstacles={"enabled": True, "rate_hz": 10.0})
+        run = RunningService(config, tracker=tracker,
+                             source=SequenceSource(sequence, realtime=False, depth=True))
+        run.thread.join(10.0)
+        scans = sim.messages("OBSTACLE_DISTANCE")
+    assert run.exit_code == 0
+    assert len(scans) == 10  # 10 Hz of a 30 fps second: every third frame
+    distances = np.array(scans[0].msg.distances)
+    assert distances[0] == pytest.approx(200, abs=2)  # straight ahead
+    assert distances[36] == 65535  # behind: unknown
+    assert scans[0].msg.frame == 12 and scans[0].msg.increment == 5  # MAV_FRAME_BODY_FRD
+
+
+def test_obstacles_need_the_depth_camera():
+    with pytest.raises(InputError, match="needs camera"):
+        replace(Config(), obstacles={"enabled": True})
