@@ -11,7 +11,9 @@ covariance, before the map exists too: standing on the ground the vehicle is whe
 (zero velocity fused), in a climb before the map the IMU and barometer carry it and the
 covariance grows, and while the map's scale is unknown the covariance carries that. So the
 autopilot hears from us from power-on (its VisOdom pre-arm check needs that) and never hears a
-position surer than the filter is.
+position surer than the filter is. A map the tracker started from a depth map is in metres
+(SceneResult.metric): its scale is 1 with no variance (ScaleSource.METRIC) and none of the scale
+fits runs, so its poses count in full from its first frame.
 
 Local frame: NED with the origin at the vehicle's position when the filter starts, at the height
 the autopilot itself reports then (LOCAL_POSITION_NED), so the autopilot's height does not step

@@ -1,6 +1,7 @@
 """One tracker frame into the navigation filter: a new map's start and scale prior, the pose
 update with the autopilot's attitude, re-anchoring, re-alignment of a map that stopped fitting,
-and, until the map converges, its scale from the climb, the IMU's motion or the scene's height.
+and, until the map converges, its scale from the climb, the IMU's motion or the scene's height
+(none of these for a metric map, started from depth: its scale is 1).
 """
 
 from __future__ import annotations
