@@ -142,7 +142,9 @@ class FrameCheck:
             return BadDepth.WRONG_TYPE, (f"got {depth.dtype}: depth maps are float metres "
                                          "(camera.yaml depth.scale converts raw units)")
         if not np.any(depth > 0):  # NaN compares false: holes too
-            return BadDepth.ALL_HOLES, "no pixel has a measurement"
+            return BadDepth.ALL_HOLES, ("no pixel has a measurement (all nearer than the "
+                                        "camera's minimum range, e.g. on the ground, covered, "
+                                        "or nothing in range)")
         return None, ""
 
     def _fits(self, width: int, height: int, t_source: float) -> bool:
