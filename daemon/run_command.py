@@ -52,7 +52,19 @@ def quiet_opencv() -> None:
 
 
 def open_source(cfg: CameraConfig) -> FrameSource:
-    """The frame source a camera.source string names."""
+    """The frame source a camera.source string names; with camera.depth, one that gives
+    depth maps."""
+    from sdvl.errors import InputError
+
+    source = _named_source(cfg)
+    if cfg.depth and not getattr(source, "depth", False):
+        raise InputError(f"camera.depth is true but camera.source '{cfg.source}' gives no "
+                         "depth maps: use a depth camera (\"realsense\") or set camera.depth "
+                         "= false")
+    return source
+
+
+def _named_source(cfg: CameraConfig) -> FrameSource:
     from daemon.camera import OpenCVSource, RecordingSource, TestPatternSource
     from daemon.realsense import is_realsense
     from daemon.recordings import open_recording

@@ -98,3 +98,8 @@ def test_missing_library_is_one_clear_line(monkeypatch):
         RealSenseSource("realsense", CAMERA, None, 30.0, depth=True)
     with pytest.raises(InputError, match=r"camera\.calibration"):
         open_source(CameraConfig(source="realsense"))
+
+
+def test_depth_asked_of_a_camera_without_depth_is_a_config_error():
+    with pytest.raises(InputError, match="gives no depth maps"):
+        open_source(CameraConfig(source="testpattern", depth=True))
