@@ -65,6 +65,7 @@ def open_source(cfg: CameraConfig) -> FrameSource:
 
 
 def _named_source(cfg: CameraConfig) -> FrameSource:
+    """The source camera.source names: test pattern, RealSense, recording folder or OpenCV."""
     from daemon.camera import OpenCVSource, RecordingSource, TestPatternSource
     from daemon.realsense import is_realsense
     from daemon.recordings import open_recording
