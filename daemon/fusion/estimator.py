@@ -81,7 +81,7 @@ class FusionEstimator:
         self.reset_counter = 0
         self.filter = NavFilter(cfg)
         self.gate = AlignmentGate(cfg, report)
-        self.attitude = AttitudeTrack(cfg.attitude_timeout_s, cfg.history_s + 2.0)
+        self.attitude = AttitudeTrack(cfg.attitude_timeout_s, cfg.history_s + 2.0, report)
         self.clock = ClockMap(cfg.clock_offset_window_s)
         self.timeline = Timeline(cfg.history_s)
         self.sources: dict[str, str] = {}  # "imu"/"baro" -> the message type fused
