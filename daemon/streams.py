@@ -112,7 +112,10 @@ class StreamKeeper:
             self.params[msg.param_id] = from_wire(self.watch.flavour, msg.param_value,
                                                   msg.param_type)
         elif name in TRACKED:
-            self.arrivals.setdefault(name, deque()).append(now)
+            times = self.arrivals.setdefault(name, deque())
+            times.append(now)
+            while now - times[0] > WINDOW_S:  # a stream no need asks for is never rated
+                times.popleft()
             self.last_arrival[name] = now
 
     def rate(self, names: tuple[str, ...], now: float) -> float:
