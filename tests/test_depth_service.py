@@ -132,7 +132,7 @@ def test_metric_map_has_no_scale_state():
 
 @pytest.fixture(scope="module")
 def depth_replay(tmp_path_factory):
-    sequence = synthetic_sequence("hover-down", frames=45)
+    sequence = synthetic_sequence("hover-down", frames=30)
     config = replace(Config(), camera={"depth": True})
     run = run_replay(sequence, config, realtime=False, progress=False)
     report = build_report(run, tmp_path_factory.mktemp("replay"))[0]
