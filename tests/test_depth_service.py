@@ -8,7 +8,7 @@ import logging
 
 import numpy as np
 import pytest
-from daemon_helpers import FakeTracker, RunningService, service_config
+from daemon_helpers import BUSY_SLACK, FakeTracker, RunningService, service_config
 from test_daemon_sources import CAMERA, tiny_sequence
 
 from calib.camera import CameraModel
@@ -72,7 +72,7 @@ def test_bad_depth_frames_are_tracked_without_depth_through_the_service():
     with SimAutopilot(configured_options(heartbeat_hz=5)) as sim:
         run = RunningService(service_config(sim.url), tracker=tracker,
                              source=SequenceSource(sequence, realtime=False, depth=True))
-        run.thread.join(10.0)
+        run.thread.join(10.0 * BUSY_SLACK)
     assert run.exit_code == 0 and tracker.index == 20  # every image tracked, none failed
     assert not run.service.tracking.failures
     given = [d is not None for d in tracker.depths]
@@ -169,7 +169,7 @@ def test_obstacle_distances_from_the_depth_frames_at_their_rate():
                                 obstacles={"enabled": True, "rate_hz": 10.0})
         run = RunningService(config, tracker=tracker,
                              source=SequenceSource(sequence, realtime=False, depth=True))
-        run.thread.join(10.0)
+        run.thread.join(10.0 * BUSY_SLACK)
         scans = sim.messages("OBSTACLE_DISTANCE")
     assert run.exit_code == 0
     assert len(scans) == 10  # 10 Hz of a 30 fps second: every third frame
