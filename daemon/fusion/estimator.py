@@ -40,6 +40,7 @@ from daemon.fusion.attitude import AttitudeTrack
 from daemon.fusion.clock import ClockMap
 from daemon.fusion.config import FusionConfig
 from daemon.fusion.imu_gate import ImuGate
+from daemon.fusion.imu_noise import ImuNoise
 from daemon.fusion.map_fusion import FrameInput, MapFusion, Readings, frame_input
 from daemon.fusion.output import Continuity, attitude_noise, build_estimate, horizontal_std
 from daemon.fusion.repeats import Repeats
@@ -90,6 +91,7 @@ class FusionEstimator:
         self._choices: dict[str, SourceChoice] = {}
         self._last_baro_t = -math.inf  # time of the last barometer sample fused
         self.imu_gate = ImuGate(report)
+        self.imu_noise = ImuNoise(cfg.accel_noise)  # of the stream fused
         self.repeats = Repeats()
         self.dropped_stamps = 0
         self._inbox: deque[tuple[float, object]] = deque(maxlen=INBOX_LIMIT)
@@ -278,6 +280,8 @@ class FusionEstimator:
         if not choice.offer(sample.source, sample.t):
             return
         self.sources[kind] = sample.source
+        if kind == "imu":
+            self.imu_noise.add(sample.t, sample.accel)
         if kind == "baro":
             if abs(sample.t - self._last_baro_t) < BARO_INTERVAL_S:
                 return
@@ -320,7 +324,7 @@ class FusionEstimator:
         f = nav or self.filter
         att = self.attitude.at(f.t) if self._imu_fresh(t, f) else None
         f.predict(t, f.accel if att is not None else None,
-                  att.R_n_b if att is not None else None)
+                  att.R_n_b if att is not None else None, self.imu_noise.density())
 
     def _start(self, t: float) -> None:
         """Start the filter at time t once rest or motion can be told (or the wait is over):

@@ -84,6 +84,7 @@ class NavFilter:
         self.scene_ne: np.ndarray | None = None  # where the map's height was last fused
         self.climb = ClimbScale()  # the current map's heights against the barometer's
         self.motion = self._accel_scale()  # its displacement against the IMU's
+        self.accel_noise = cfg.accel_noise  # of the IMU, as the last prediction used it
         self.accel: np.ndarray | None = None  # last IMU specific force, held until the next
         self.t_accel = float("-inf")
         self.rejections = {"range": 0, "baro": 0, "vo": 0}
@@ -260,9 +261,11 @@ class NavFilter:
 
     # --- prediction ---------------------------------------------------------------------------
 
-    def predict(self, t: float, accel: np.ndarray | None, R_n_b: np.ndarray | None) -> None:
+    def predict(self, t: float, accel: np.ndarray | None, R_n_b: np.ndarray | None,
+                accel_noise: float | None = None) -> None:
         """Propagate to time t: with the IMU's specific force (held since its sample) and the
-        attitude when both are given, else with a constant-velocity model."""
+        attitude when both are given, its white noise `accel_noise` (m/s^2/sqrt(Hz); default
+        the configured one), else with a constant-velocity model."""
         dt = t - self.t
         if dt <= 0:
             return
@@ -275,7 +278,7 @@ class NavFilter:
             acc = R_n_b @ (accel - x[BIAS]) + GRAVITY_N
             F[POS, BIAS] = -0.5 * R_n_b * dt**2
             F[VEL, BIAS] = -R_n_b * dt
-            sigma = cfg.accel_noise
+            sigma = self.accel_noise = cfg.accel_noise if accel_noise is None else accel_noise
         else:
             acc = np.zeros(3)
             sigma = cfg.motion_accel_std
