@@ -25,22 +25,24 @@ def vibrating(n: int, seed: int) -> np.ndarray:
 
 def test_the_noise_of_a_vibrating_stream_is_measured_and_a_quiet_one_keeps_the_floor():
     noise = ImuNoise(floor=0.02)
-    assert noise.density() == 0.02  # nothing measured yet
+    assert np.all(noise.density() == 0.02)  # nothing measured yet
     for k, a in enumerate(vibrating(200, 0)):
         noise.add(k / HZ, a)
     expected = SAMPLE_STD * np.sqrt(1.0 / HZ)
-    assert abs(noise.density() - expected) < 0.15 * expected  # the slow manoeuvre is no noise
+    measured = noise.density()  # from a second's 50 differences: +-12 % per axis (1 sigma)
+    assert np.all(abs(measured - expected) < 0.4 * expected)
+    assert abs(np.sqrt(np.mean(measured**2)) - expected) < 0.15 * expected  # manoeuvre: no noise
     quiet = ImuNoise(floor=0.02)
     for k in range(200):
         quiet.add(k / HZ, HOVER + 1e-3 * np.sin(k))
-    assert quiet.density() == 0.02
+    assert np.all(quiet.density() == 0.02)
 
 
 def test_samples_apart_by_a_gap_are_not_differenced():
     noise = ImuNoise(floor=0.02)
     for k in range(100):  # alternating far apart in time: each pair straddles a gap
         noise.add(k * 1.0, HOVER + (5.0 if k % 2 else 0.0))
-    assert noise.density() == 0.02
+    assert np.all(noise.density() == 0.02)
 
 
 def dead_reckoning_nees(accel_noise: float | None, runs: int = 60) -> float:

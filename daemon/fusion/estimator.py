@@ -313,7 +313,18 @@ class FusionEstimator:
             if att is not None:
                 m.update_range(f, event.data.distance, att.R_n_b)
         elif event.kind == "baro":
-            m.update_baro(f, event.data.altitude)
+            self._baro(event.t, event.data.altitude)
+
+    def _baro(self, t: float, altitude: float) -> None:
+        """The barometer's altitude, only while no rangefinder measures the height: in flight
+        the rotors' wash moves it by up to a metre with the throttle (why ArduPilot has
+        BARO1_THST_SCALE; 0.77 m in a hover in sim/autopilot), a bias no white noise covers
+        that would pull the height the rangefinder knows to centimetres. Its offset is
+        re-referenced when it is needed again."""
+        if self.readings.fresh_range(t) is None:
+            m.update_baro(self.filter, altitude)
+        else:
+            self.filter.has_baro = False
 
     def _imu_fresh(self, t: float, nav: NavFilter | None = None) -> bool:
         f = nav or self.filter

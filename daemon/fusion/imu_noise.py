@@ -28,8 +28,9 @@ MIN_DIFFERENCES = 10
 
 
 class ImuNoise:
-    """Successive-difference noise of one IMU stream over the last WINDOW_S seconds;
-    `density()` is at least the configured `floor` (m/s^2/sqrt(Hz))."""
+    """Successive-difference noise of one IMU stream over the last WINDOW_S seconds, per body
+    axis (a multirotor vibrates most along its thrust axis); `density()` is at least the
+    configured `floor` (m/s^2/sqrt(Hz))."""
 
     def __init__(self, floor: float):
         self.floor = floor
@@ -46,11 +47,11 @@ class ImuNoise:
         while self._diffs and self._diffs[0][0] < t - WINDOW_S:
             self._diffs.popleft()
 
-    def density(self) -> float:
-        """White acceleration noise density of the stream, m/s^2/sqrt(Hz)."""
+    def density(self) -> np.ndarray:
+        """White acceleration noise density of the stream along each body axis (FRD),
+        m/s^2/sqrt(Hz)."""
         if len(self._diffs) < MIN_DIFFERENCES:
-            return self.floor
-        variance = 0.5 * np.mean([d[1] for d in self._diffs], axis=0)  # per sample, per axis
+            return np.full(3, self.floor)
+        variance = 0.5 * np.mean([d[1] for d in self._diffs], axis=0)  # per sample
         dt = float(np.median([d[2] for d in self._diffs]))
-        # the noisiest axis: the filter's process noise is the same on every axis
-        return max(self.floor, float(np.sqrt(np.max(variance) * dt)))
+        return np.maximum(self.floor, np.sqrt(variance * dt))
