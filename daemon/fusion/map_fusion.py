@@ -153,7 +153,6 @@ class MapFusion:
         if f.converged or not self.imu_fresh(t):
             f.motion.interrupt()  # nothing left to fit, or no IMU to fit
             return
-        f.motion.accel_noise = f.accel_noise  # the stream's measured noise weighs the fit
         f.motion.add_frame(t, frame.p_w, f.R_nom)
         fit = f.motion.fit()
         if att is None or fit is None or not fit[1] <= cfg.coarse_scale_std:

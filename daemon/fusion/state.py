@@ -84,7 +84,6 @@ class NavFilter:
         self.scene_ne: np.ndarray | None = None  # where the map's height was last fused
         self.climb = ClimbScale()  # the current map's heights against the barometer's
         self.motion = self._accel_scale()  # its displacement against the IMU's
-        self.accel_noise = cfg.accel_noise  # of the IMU, as the last prediction used it
         self.accel: np.ndarray | None = None  # last IMU specific force, held until the next
         self.t_accel = float("-inf")
         self.rejections = {"range": 0, "baro": 0, "vo": 0}
@@ -281,7 +280,6 @@ class NavFilter:
             F[VEL, BIAS] = -R_n_b * dt
             density = np.broadcast_to(cfg.accel_noise if accel_noise is None else accel_noise,
                                       (3,))
-            self.accel_noise = float(np.max(density))
             q = R_n_b @ np.diag(density**2) @ R_n_b.T  # body axes into N
         else:
             acc = np.zeros(3)
