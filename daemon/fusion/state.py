@@ -266,9 +266,12 @@ class NavFilter:
 
     # --- prediction ---------------------------------------------------------------------------
 
-    def predict(self, t: float, accel: np.ndarray | None, R_n_b: np.ndarray | None) -> None:
+    def predict(self, t: float, accel: np.ndarray | None, R_n_b: np.ndarray | None,
+                accel_noise: float | None = None) -> None:
         """Propagate to time t: with the IMU's specific force (held since its sample) and the
-        attitude when both are given, else with a constant-velocity model."""
+        attitude when both are given, its white noise `accel_noise` (m/s^2/sqrt(Hz) along each
+        body axis; default the configured one on all three), else with a constant-velocity
+        model."""
         dt = t - self.t
         if dt <= 0:
             return
@@ -281,10 +284,12 @@ class NavFilter:
             acc = R_n_b @ (accel - x[BIAS]) + GRAVITY_N
             F[POS, BIAS] = -0.5 * R_n_b * dt**2
             F[VEL, BIAS] = -R_n_b * dt
-            sigma = cfg.accel_noise
+            density = np.broadcast_to(cfg.accel_noise if accel_noise is None else accel_noise,
+                                      (3,))
+            q = R_n_b @ np.diag(density**2) @ R_n_b.T  # body axes into N
         else:
             acc = np.zeros(3)
-            sigma = cfg.motion_accel_std
+            q = np.eye(3) * cfg.motion_accel_std**2
         speed = float(np.linalg.norm(x[VEL]))
         horizontal_speed = float(np.linalg.norm(x[3:5]))
         x[POS] += x[VEL] * dt + 0.5 * acc * dt**2
@@ -294,18 +299,17 @@ class NavFilter:
         else:
             self.motion.interrupt()
         x[VO_TILT] *= self._tilt_decay(dt)
-        Q = self._process_noise(dt, sigma, speed, horizontal_speed, accel is not None)
+        Q = self._process_noise(dt, q, speed, horizontal_speed, accel is not None)
         self.P = F @ self.P @ F.T + Q
         self.t = t
 
-    def _process_noise(self, dt: float, sigma: float, speed: float, horizontal_speed: float,
+    def _process_noise(self, dt: float, q: np.ndarray, speed: float, horizontal_speed: float,
                        imu: bool) -> np.ndarray:
         cfg = self.cfg
         Q = np.zeros((DIM, DIM))
-        q = sigma**2
-        Q[POS, POS] = np.eye(3) * q * dt**3 / 3
-        Q[POS, VEL] = Q[VEL, POS] = np.eye(3) * q * dt**2 / 2
-        Q[VEL, VEL] = np.eye(3) * q * dt
+        Q[POS, POS] = q * dt**3 / 3  # q: white acceleration noise density^2 (3x3, N)
+        Q[POS, VEL] = Q[VEL, POS] = q * dt**2 / 2
+        Q[VEL, VEL] = q * dt
         if imu:
             Q[BIAS, BIAS] = np.eye(3) * cfg.accel_bias_walk**2 * dt
         Q[ANCHOR, ANCHOR] = np.eye(3) * (cfg.vo_drift_m_per_sqrt_m**2 * horizontal_speed
