@@ -80,6 +80,9 @@ class TrackerConfig:
     # degrees): matches crowded into the sliver of view shared with a keyframe leave tilt and
     # sideways position confused (seen: 14 deg and 2.7 m off at 1.6 deg std; tracking: < 0.2)
     reloc_max_rotation_std_deg: float = 0.5
+    # a turned prior is first aligned turning only (the camera where the keyframe stood), then
+    # fully: a fast rotation that lost the track also rolls, which the image shift misses
+    reloc_rotation_first: bool = True
     # keyframes tried per lost frame (the newest ones; 0 = all)
     reloc_max_keyframes: int = 0
     # while relocalising, a new map is initialised on the side (if reinit_when_lost); it is
