@@ -339,7 +339,7 @@ def format_report(r: dict) -> str:
                      f"{r['first_depth_frame']})")
     if r["segments"] > 1:
         seg_ate = r["longest_segment_ate_rmse_m"]
-        lines.append(f"segments   {r['segments']} (relocalised or re-initialised); longest "
+        lines.append(f"segments   {r['segments']} (re-initialised); longest "
                      f"{r['longest_segment_poses']} poses"
                      + ("" if seg_ate is None else f", ATE RMSE {seg_ate:.4f} m, rotation "
                         f"RMSE {r['longest_segment_rot_rmse_deg']:.2f} deg"))

@@ -169,7 +169,8 @@ def align(params: np.ndarray, ref_pyr, cur_pyr, px_ref: np.ndarray, xyz_ref: np.
     """T_cur_ref refined by aligning 4x4 patches around px_ref (level 0) of points xyz_ref (in
     the reference camera) from the reference pyramid to the current one, levels max..min;
     `robust` Tukey-weights the residuals (else plain least squares, as the thesis);
-    `rotation_only` keeps the translation of T_cur_ref (a camera turning where it stands)."""
+    `rotation_only` keeps the translation of T_cur_ref (from one without, the camera turns
+    where the reference stood)."""
     T = np.ascontiguousarray(T_cur_ref, dtype=np.float64)
     fx, fy = float(params[1]), float(params[2])
     for level in range(max_level, min_level - 1, -1):
