@@ -216,7 +216,7 @@ class TrackLog:
             self.times.append(t)
             self.poses.append(result.T_w_c)
             self.segment.append(len(self.segment) and self.segment[-1]
-                                + int(result.new_segment))
+                                + int(result.new_segment and not result.relocalized))
             if self.first_pose_s is None:
                 self.first_pose_s = time.perf_counter() - self.started
                 self.first_pose_frame = self.n_frames - 1

@@ -76,11 +76,12 @@ class FrameTracking:
 
     def resume(self, frame: Frame, m: Matches, cov: np.ndarray) -> FrameResult:
         """Track on from a relocalised frame (its matches m, pose covariance cov): its result,
-        in the same map, so the same segment (its world frame and scale go on)."""
+        a new segment (the pose may jump) in the same map (relocalized)."""
         self.matcher.accept(frame, m)
         self.lost = LostCounter(self.config)
         self.motion = np.eye(4)
         self.last = frame
         return FrameResult(frame.t, frame.T_w_c, self.matcher.quality(m), covariance=cov,
                            n_matches=len(m.ids), n_attempts=m.n_attempts,
-                           n_inliers=m.n_inliers, n_hypotheses=m.n_hypotheses)
+                           n_inliers=m.n_inliers, new_segment=True, relocalized=True,
+                           n_hypotheses=m.n_hypotheses)
