@@ -8,6 +8,7 @@ resets both). Progress goes to the log and to a `report(text)` callback (STATUST
 
 from __future__ import annotations
 
+import enum
 import logging
 import math
 from collections.abc import Callable
@@ -20,6 +21,13 @@ from daemon.fusion.state import HEADING, LOG_SCALE, NavFilter
 log = logging.getLogger("sdvl.fusion")
 
 
+class Alignment(enum.Enum):
+    """Whether the current map's scale and heading are known well enough to publish."""
+
+    ALIGNING = "aligning"  # not yet, or lost again (a spread above twice its limit)
+    ALIGNED = "aligned"  # both spreads below their limits for min_aligned_s
+
+
 class AlignmentGate:
     """Tracks convergence of the current segment and reports progress."""
 
@@ -27,7 +35,7 @@ class AlignmentGate:
         self.cfg = cfg
         self.report = report
         self.aligned_since: float | None = None
-        self.publishing = False
+        self.state = Alignment.ALIGNING
         self.last_text_t = float("-inf")
         self.last_text = ""
 
@@ -50,17 +58,17 @@ class AlignmentGate:
             self.aligned_since = t
         elif lost:
             self.aligned_since = None
-        was = self.publishing
-        self.publishing = (self.aligned_since is not None
-                           and t - self.aligned_since >= cfg.min_aligned_s)
-        if self.publishing and not was:
-            self._say(f"aligned: scale {f.scale:.3g} m/unit", t, force=True)
-        elif not self.publishing and was:
-            self._say("alignment lost, re-aligning", t, force=True)
-        elif not self.publishing:
+        was = self.state
+        self.state = (Alignment.ALIGNED if self.aligned_since is not None
+                      and t - self.aligned_since >= cfg.min_aligned_s else Alignment.ALIGNING)
+        if self.state is was is Alignment.ALIGNING:
             self._say(f"aligning: scale +-{100 * min(scale_std, 9.99):.0f}%, heading "
                       f"+-{min(heading_std, 999):.1f} deg", t)
-        return self.publishing
+        elif self.state is Alignment.ALIGNED and was is Alignment.ALIGNING:
+            self._say(f"aligned: scale {f.scale:.3g} m/unit", t, force=True)
+        elif self.state is Alignment.ALIGNING:
+            self._say("alignment lost, re-aligning", t, force=True)
+        return self.state is Alignment.ALIGNED
 
     def waiting(self, reason: str, t: float) -> None:
         """Report why alignment cannot start (e.g. no attitude from the autopilot)."""

@@ -16,7 +16,7 @@ from daemon.fusion.alignment import AlignmentGate
 from daemon.fusion.attitude import AttitudeTrack
 from daemon.fusion.config import FusionConfig
 from daemon.fusion.output import attitude_noise, inflation
-from daemon.fusion.state import ANCHOR, LOG_SCALE, POS, NavFilter
+from daemon.fusion.state import ANCHOR, LOG_SCALE, POS, NavFilter, ScaleSource
 from vo.pose_optimizer import MAD_TO_SIGMA
 from vo.result import Quality
 
@@ -117,7 +117,7 @@ class MapFusion:
             f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, f.x[LOG_SCALE],
                             float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE])))
             f.rejections["vo"] = 0
-        if f.scale_source == "prior":
+        if f.scale_source is ScaleSource.PRIOR:
             f.forget_scale()
 
     def _climb_scale(self, t: float, frame: FrameInput, att: object) -> None:
@@ -156,7 +156,7 @@ class MapFusion:
         if att is None or fit is None or not fit[1] <= cfg.coarse_scale_std:
             return
         std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
-        surer = fit[1] < std and f.scale_source != "given"
+        surer = fit[1] < std and f.scale_source is not ScaleSource.GIVEN
         if surer or abs(fit[0] - f.x[LOG_SCALE]) > 3.0 * np.hypot(fit[1], std):
             log.info("fusion: scale %.3g m/unit from the IMU (+-%.1f%%), the filter had %.3g "
                      "(+-%.1f%%)", np.exp(fit[0]), 100 * fit[1], f.scale, 100 * std)

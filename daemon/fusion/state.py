@@ -24,6 +24,8 @@ autopilot's attitude observes it.
 
 from __future__ import annotations
 
+import enum
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -55,6 +57,14 @@ def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(R).as_rotvec()
 
 
+class ScaleSource(enum.Enum):
+    """Where the current map's scale came from."""
+
+    PRIOR = "prior"  # the wide prior: the filter's own scale is not trusted (forget_scale)
+    GIVEN = "given"  # start_segment's, e.g. from the rangefinder
+    FIT = "fit"  # an independent fit (rescale: climb against the barometer, IMU motion)
+
+
 class NavFilter:
     """State, covariance and the nominal quantities around which the EKF is linearised."""
 
@@ -70,10 +80,7 @@ class NavFilter:
         self.segment = -1  # id of the map segment the anchor belongs to
         self.realigns = 0  # segments restarted because the tracker's poses stopped fitting
         self.converged = False  # scale and heading of this segment passed the alignment gate
-        # where the current map's scale came from: "prior" (the wide one: the EKF's own scale
-        # is not trusted, forget_scale), "given" (start_segment's, e.g. the rangefinder's) or
-        # "fit" (rescale)
-        self.scale_source = "prior"
+        self.scale_source = ScaleSource.PRIOR
         self.scene_ne: np.ndarray | None = None  # where the map's height was last fused
         self.climb = ClimbScale()  # the current map's heights against the barometer's
         self.motion = self._accel_scale()  # its displacement against the IMU's
@@ -144,7 +151,8 @@ class NavFilter:
         x[THETA] = 0.0
         if scale_std is None:
             scale_std = self.cfg.scale_prior_std
-        self.scale_source = "given" if scale_std < self.cfg.scale_prior_std else "prior"
+        self.scale_source = (ScaleSource.GIVEN if scale_std < self.cfg.scale_prior_std
+                             else ScaleSource.PRIOR)
         for index, std in ((LOG_SCALE, scale_std),
                            (THETA, np.radians(self.cfg.attitude_std_deg)),
                            (HEADING, np.radians(self.cfg.heading_std_deg))):
@@ -183,7 +191,7 @@ class NavFilter:
         x[VEL] *= ratio
         x[LOG_SCALE] = log_scale
         self.has_baro = False
-        self.scale_source = "fit"
+        self.scale_source = ScaleSource.FIT
 
     def forget_scale(self) -> None:
         """Back to the wide prior's uncertainty: from there the EKF's linearised fixes settle
