@@ -86,6 +86,9 @@ class TrackerConfig:
     # a turned prior is first aligned turning only (the camera where the keyframe stood), then
     # fully: a fast rotation that lost the track also rolls, which the image shift misses
     reloc_rotation_first: bool = True
+    # the last tracked frame is tried first: a fast turn loses the track where the camera
+    # still stands, often far from any keyframe (kf_min_frames apart)
+    reloc_last_frame: bool = True
     # keyframes tried per lost frame (the newest ones; 0 = all)
     reloc_max_keyframes: int = 0
     # while relocalising, a new map is initialised on the side (if reinit_when_lost); it is

@@ -26,19 +26,17 @@ class Relocalizer:
         self.camera, self.config, self.matcher = camera, config, matcher
         self.map = matcher.map
 
-    def find(self, frame: Frame, timings: dict[str, float]
+    def find(self, frame: Frame, timings: dict[str, float], last: Frame | None = None
              ) -> tuple[Matches, np.ndarray] | None:
-        """The first keyframe (newest first) that gives frame a pose: the matches (the
-        refined pose in them) and the pose's covariance; None when none does."""
+        """The first reference that gives frame a pose: the last tracked frame `last` (a fast
+        turn loses the track where the camera still stands, often far from any keyframe),
+        then the keyframes, newest first. Returns the matches (the refined pose in them) and
+        the pose's covariance; None when no reference does."""
         cfg = self.config
         t0 = time.perf_counter()
-        slots = sorted(self.map.keyframes, key=lambda s: -self.map.keyframes[s].id)
-        if cfg.reloc_max_keyframes > 0:
-            slots = slots[:cfg.reloc_max_keyframes]
         found = None
-        for slot in slots:
-            if not self._align_to_keyframe(frame, self.map.keyframes[slot]) < (
-                    cfg.reloc_max_residual_ratio):
+        for ref, ids, px in self._references(last):
+            if not self._align_to_reference(frame, ref, ids, px) < cfg.reloc_max_residual_ratio:
                 continue
             m = self.matcher.match(frame, {})
             if m.n_inliers >= cfg.reloc_min_matches and self.matcher.quality(m) != Quality.BAD:
@@ -49,10 +47,23 @@ class Relocalizer:
         timings["relocalize"] = ms_since(t0)
         return found
 
-    def _align_to_keyframe(self, frame: Frame, kf: Frame) -> float:
-        """Frame's pose by direct alignment to keyframe kf from the best of the shifted
-        priors; returns the residual ratio of that alignment."""
-        ids, px = self.map.observed_by(kf.slot)
+    def _references(self, last: Frame | None):
+        """(frame, point ids, level-0 pixels) to align a lost frame to: the last tracked frame
+        and its matched points (with reloc_last_frame, unless it is a keyframe), then the
+        keyframes, newest first (at most reloc_max_keyframes, 0 = all)."""
+        cfg = self.config
+        if cfg.reloc_last_frame and last is not None and not last.is_keyframe:
+            yield last, last.feat_point, last.feat_px
+        slots = sorted(self.map.keyframes, key=lambda s: -self.map.keyframes[s].id)
+        if cfg.reloc_max_keyframes > 0:
+            slots = slots[:cfg.reloc_max_keyframes]
+        for slot in slots:
+            yield (self.map.keyframes[slot], *self.map.observed_by(slot))
+
+    def _align_to_reference(self, frame: Frame, kf: Frame, ids: np.ndarray,
+                            px: np.ndarray) -> float:
+        """Frame's pose by direct alignment to reference kf (its points ids seen at pixels px)
+        from the best of the shifted priors; returns the residual ratio of that alignment."""
         X = self.map.points.pos_w[ids] @ kf.T_c_w[:3, :3].T + kf.T_c_w[:3, 3]
         depth = float(np.median(X[:, 2])) if len(X) else 1.0
         cfg = self.config

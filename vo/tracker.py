@@ -250,7 +250,7 @@ class Tracker:
 
     def _relocalize(self, frame: Frame, timings: dict[str, float]) -> FrameResult:
         """Frame's pose in the map, tracking going on from it; quality LOST if none."""
-        found = self.relocalizer.find(frame, timings)
+        found = self.relocalizer.find(frame, timings, self.last)
         if found is None:
             return FrameResult(frame.t, None, Quality.LOST)
         self.state = TrackerState.TRACKING
