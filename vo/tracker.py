@@ -168,10 +168,10 @@ class Tracker:
         self.mapping.frame_tracked()  # tracked: a BA may go on
         if result.quality == Quality.LOST:
             self._on_lost()  # outside the map lock: a reset joins the mapping thread
-        # mapping follows frames tracked against the map (a new map's frames are in it
-        # already; poses before the map have none)
-        if result.has_pose and self.last is frame and not (result.new_segment
-                                                            or frame.is_keyframe):
+        # mapping follows frames tracked against the map, relocalised ones too (a new map's
+        # frames are in it already; poses before the map have none)
+        new_map = result.new_segment and not result.relocalized
+        if result.has_pose and self.last is frame and not (new_map or frame.is_keyframe):
             t1 = time.perf_counter()
             self.mapping.submit(frame, keyframe)
             timings["mapping"] = ms_since(t1)
