@@ -74,7 +74,7 @@ class TrackerConfig:
     # direct alignment to a keyframe must explain the patches this well before matching
     # (zero-mean residual over patch energy: 0 perfect, ~1 blank image, ~2 unrelated texture);
     # a frame blurred by a fast turn fits near 1 at the right pose, and the matching after it
-    # decides (0.5 kept kitti00 lost in its turn: RESULTS.md tracker-reloc-kitti)
+    # decides (RESULTS.md: tracker-reloc-kitti)
     reloc_max_residual_ratio: float = 1.0
     # pyramid level at which the image shift to a keyframe is found (phase correlation)
     reloc_shift_level: int = 2
@@ -167,8 +167,8 @@ class TrackerConfig:
     seed_b: float = 10.0
     seed_sigma_ratio: float = 1.0
     convergence_L: float = 0.1
-    # 15 keeps a map's points through a fast turn for relocalisation (tum_fr1_rpy: 687/723
-    # in one map) but was no default: RESULTS.md tracker-reloc-tum, -hover
+    # 15 keeps a map's points through a fast turn to relocalise into (tum_fr1_rpy in one map)
+    # but costs ATE on tum and hover-down (RESULTS.md: tracker-reloc-tum, tracker-reloc-hover)
     seed_max_failures: int = 5
     # a new candidate no keyframe matched (ground uncovered by people who stood on it in every
     # earlier keyframe) starts at the depth of the plane through the keyframe's converged
