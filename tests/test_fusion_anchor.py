@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from daemon.fusion.config import FusionConfig
 from daemon.fusion.state import ANCHOR, LOG_SCALE, THETA, VEL, NavFilter
@@ -37,3 +38,16 @@ def test_a_climb_lets_the_map_wander_sideways_only() -> None:
     f.predict(4.0, None, None)  # 4 m climbed
     grown = np.diag(f.P[ANCHOR, ANCHOR]) - before
     np.testing.assert_allclose(grown, [0.03**2 * 4, 0.03**2 * 4, 0.0], rtol=1e-9, atol=1e-15)
+
+
+def test_a_tracker_rejected_in_a_row_makes_the_filter_doubt_its_own_motion() -> None:
+    """The map and the filter drifting apart at 1 m/s for 10 frames: before the map is
+    re-anchored on the filter, the filter's position takes the disagreement as covariance and
+    its velocity the rate of it (whichever of them went wrong, the estimate sent covers it)."""
+    f = _filter()
+    before = f.P.copy()
+    f.vo_disagreement = [(k / 30, np.array([k / 30, 0.0, 0.0])) for k in range(10)]
+    f.doubt_motion()
+    grown = np.diag(f.P - before)
+    assert grown[0] == pytest.approx(0.3**2) and grown[1] == grown[2] == 0.0
+    assert grown[VEL.start] == pytest.approx(1.0) and f.vo_disagreement == []

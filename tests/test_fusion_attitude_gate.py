@@ -32,3 +32,27 @@ def test_a_lasting_change_is_followed():
         track.add(attitude(0.02 * k))
     kept = [track.add(attitude(0.2 + 0.02 * k, yaw=1.0)) for k in range(STRIKES + 2)]
     assert kept == [False] * (STRIKES - 1) + [True] * 3  # the AHRS reset its heading
+
+
+def test_a_tilt_its_rates_do_not_explain_is_refused():
+    """At 20 Hz a vehicle could turn half a radian between samples at the rate limit; the body
+    rates say it does not, so a roll 5 degrees off is no turn (it would leak 0.9 m/s^2 of
+    gravity into the IMU's acceleration)."""
+    track = AttitudeTrack(timeout_s=0.1, keep_s=5.0)
+    for k in range(10):
+        assert track.add(attitude(0.05 * k, roll=0.2 * 0.05 * k, rates=[0.2, 0, 0]))
+    assert not track.add(attitude(0.5, roll=0.1 + np.radians(5.0), rates=[0.2, 0, 0]))
+    assert track.add(attitude(0.5, roll=0.1, rates=[0.2, 0, 0]))
+    assert track.add(attitude(0.55, roll=0.13, rates=[1.0, 0, 0]))  # rolling faster: 16 rad/s^2
+
+
+def test_corrupt_samples_among_good_ones_are_never_followed():
+    track = AttitudeTrack(timeout_s=0.1, keep_s=5.0)
+    rng = np.random.default_rng(4)
+    kept = []
+    for k in range(40):
+        corrupt = k >= 10 and k % 4 != 0  # three of four samples, each off its own way
+        roll = float(rng.uniform(0.2, 0.6)) * rng.choice([-1, 1]) if corrupt else 0.0
+        kept.append(track.add(attitude(0.05 * k, roll=roll)))
+    assert all(kept[k] for k in range(40) if k < 10 or k % 4 == 0)
+    assert not any(kept[k] for k in range(10, 40) if k % 4 != 0)

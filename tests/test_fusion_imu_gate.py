@@ -64,3 +64,4 @@ def test_a_failing_stream_is_dropped_said_and_taken_back_when_clean():
     dropped = [k for k, ok in enumerate(verdicts) if not ok and k >= 200]
     assert dropped and dropped[-1] < 200 + READMIT_S * 50 + 10  # clean samples not used
     assert verdicts[-1] is True
+

@@ -93,6 +93,18 @@ def test_clock_offset_from_least_delayed_message() -> None:
     assert clock.to_local(50.0, 105.02) is None  # stamp far ahead of its arrival: wrong
 
 
+def test_clock_offset_is_not_dragged_by_messages_that_came_too_early() -> None:
+    """One message in a hundred arrives 15 ms before it can have been sent (reordered by the
+    link, or stamped a little ahead): the offset stays that of the least delayed real ones."""
+    clock = ClockMap(window_s=10.0)
+    rng = np.random.default_rng(1)
+    for k in range(500):
+        remote = 0.02 * k
+        early = 0.015 if k % 100 == 50 else 0.0
+        clock.to_local(remote, remote + 100.0 + rng.uniform(0.005, 0.02) - early)
+    assert clock.to_local(10.0, 110.01) == pytest.approx(110.005, abs=0.001)
+
+
 def test_clock_drops_a_corrupt_stamp_and_follows_a_reboot() -> None:
     clock = ClockMap()
     for k in range(50):
@@ -110,7 +122,9 @@ def test_attitude_track_interpolates_and_times_out() -> None:
     mid = track.at(1.05)
     assert Rotation.from_matrix(mid.R_n_b).as_euler("ZYX")[0] == pytest.approx(0.1)
     assert mid.rates[2] == pytest.approx(0.1)
-    assert track.at(1.15) is track.samples[-1]
+    after = track.at(1.15)  # carried on by its rates, 0.2 rad/s for 50 ms
+    assert Rotation.from_matrix(after.R_n_b).as_euler("ZYX")[0] == pytest.approx(0.21)
+    assert track.at(1.19).gap_var > after.gap_var > 0.0 and mid.gap_var > 0.0
     assert track.at(1.3) is None and track.at(0.8) is None
 
 

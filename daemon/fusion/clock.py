@@ -1,17 +1,21 @@
 """Autopilot time -> our CLOCK_MONOTONIC seconds.
 
 The offset (ours minus the autopilot's boot time) comes from TIMESYNC when the service measures
-it (`set_offset`); until then it is estimated like ArduPilot's jitter correction does: the
-smallest (arrival - remote stamp) over a sliding window belongs to the least delayed message, so
-it is the true offset plus only the smallest transport latency. A stamp more than a second behind
-the estimate (a corrupt or very late message) or more than 50 ms ahead of it (a corrupt stamp)
-is dropped; several such in a row mean the autopilot's clock changed (a reboot) and restart the
-estimate. Stamps in UNIX time
-(some time_usec fields) get their own offset.
+it (`set_offset`); until then it is estimated much like ArduPilot's jitter correction does: the
+least (arrival - remote stamp) over a sliding window belongs to the least delayed messages, so
+it is the true offset plus only the smallest transport latency. Not the very least: a message
+that arrives before it can have been sent (a corrupt stamp a little ahead, a packet the link
+reordered or replayed) would drag the estimate early and every stamp with it, so the estimate
+is the QUANTILE of the window's delays, which a few such messages cannot move. A stamp more
+than a second behind the estimate (a corrupt or very late message) or more than 50 ms ahead of
+it (a corrupt stamp) is dropped; several such in a row mean the autopilot's clock changed (a
+reboot) and restart the estimate. Stamps in UNIX time (some time_usec fields) get their own
+offset.
 """
 
 from __future__ import annotations
 
+import bisect
 from collections import deque
 
 UNIX_EPOCH_THRESHOLD_S = 1e9  # no autopilot has been up for 31 years: such stamps are UNIX time
@@ -19,6 +23,7 @@ JUMP_S = 1.0
 EARLY_S = 0.05  # arriving this much earlier than the best so far: a wrong stamp, or a new clock
 STRIKES_TO_RESTART = 5
 MAX_AHEAD_S = 0.05  # a stamp mapped this far after its own arrival is wrong
+QUANTILE = 0.02  # of the delays: below it, messages that came too early to be right
 
 
 class _Domain:
@@ -26,8 +31,8 @@ class _Domain:
 
     def __init__(self, window_s: float):
         self.window_s = window_s
-        # (arrival, arrival - remote) with increasing delays: the window's minimum is first
-        self.samples: deque[tuple[float, float]] = deque()
+        self.samples: deque[tuple[float, float]] = deque()  # (arrival, arrival - remote)
+        self.delays: list[float] = []  # the same delays, sorted
         self.strikes = 0
 
     def observe(self, remote: float, arrival: float) -> bool:
@@ -38,16 +43,19 @@ class _Domain:
             if self.strikes < STRIKES_TO_RESTART:
                 return False
             self.samples.clear()
+            self.delays.clear()
         self.strikes = 0
-        while self.samples and self.samples[-1][1] >= delay:
-            self.samples.pop()
         self.samples.append((arrival, delay))
+        bisect.insort(self.delays, delay)
         while self.samples[0][0] < arrival - self.window_s:
-            self.samples.popleft()
+            _, old = self.samples.popleft()
+            del self.delays[bisect.bisect_left(self.delays, old)]
         return True
 
     def offset(self) -> float | None:
-        return self.samples[0][1] if self.samples else None
+        if not self.delays:
+            return None
+        return self.delays[int(QUANTILE * (len(self.delays) - 1))]
 
 
 class ClockMap:

@@ -146,7 +146,8 @@ class FusionEstimator:
             if att is None or not self._imu_fresh(t, carried):
                 return None
             estimate = build_estimate(
-                carried, self.cfg, R_l_b=att.R_n_b, rot_cov=attitude_noise(self.cfg, Quality.GOOD),
+                carried, self.cfg, R_l_b=att.R_n_b,
+                rot_cov=attitude_noise(self.cfg, Quality.GOOD, att.gap_var),
                 rates=att.rates, t_capture=t, t_source=math.nan, state=Quality.GOOD,
                 reset_counter=self.reset_counter)
             if estimate is None or horizontal_std(carried) > self.cfg.publish_max_std_m:
@@ -183,7 +184,7 @@ class FusionEstimator:
             R_l_b = f.R_nom @ frame.R_w_b
             rot_cov = f.P[THETA, THETA] + f.R_nom @ frame.cov[3:, 3:] @ f.R_nom.T
         elif att is not None:
-            R_l_b, rot_cov = att.R_n_b, attitude_noise(cfg, result.quality)
+            R_l_b, rot_cov = att.R_n_b, attitude_noise(cfg, result.quality, att.gap_var)
         else:
             return None
         if not self._known(t_capture):
@@ -255,15 +256,19 @@ class FusionEstimator:
                     self.rest.on_rates(t, sample.rates)
                     self.timeline.add(t, "attitude", None)  # late ones replay what used it
             elif isinstance(sample, Imu) and self.cfg.use_imu:
-                if self.imu_gate.admit(sample.source, t, sample.accel):
-                    self.rest.on_imu(t, sample.accel)
-                    self._add_stream("imu", sample, IMU_PRIORITY)
+                self._add_imu(sample)
             elif isinstance(sample, LocalPosition):
                 self._autopilot_z = (t, float(sample.position[2]))
             elif isinstance(sample, Range) and self.cfg.use_rangefinder:
                 self.timeline.add(t, "range", sample)
             elif isinstance(sample, Baro) and self.cfg.use_baro:
                 self._add_stream("baro", sample, BARO_PRIORITY)
+
+    def _add_imu(self, sample: Imu) -> None:
+        """An IMU sample through the spike gate (imu_gate.py)."""
+        if self.imu_gate.admit(sample.source, sample.t, sample.accel):
+            self.rest.on_imu(sample.t, sample.accel)
+            self._add_stream("imu", sample, IMU_PRIORITY)
 
     def _add_stream(self, kind: str, sample: Imu | Baro, priority: dict[str, int]) -> None:
         """Fuse one stream of a kind: the preferred one that streams steadily (source_choice)."""

@@ -104,7 +104,8 @@ class MapFusion:
                   > self.cfg.coarse_scale_std else 1.0)
         R_n_b = f.R_nom @ frame.R_w_b
         attitude = (None if att is None
-                    else (att.R_n_b, frame.R_w_b, attitude_noise(self.cfg, frame.quality)))
+                    else (att.R_n_b, frame.R_w_b,
+                          attitude_noise(self.cfg, frame.quality, att.gap_var)))
         if m.update_vo(f, frame.p_w, frame.cov, R_n_b, factor, imu, attitude,
                        coarse):
             if np.linalg.norm(f.x[POS] - f.x[ANCHOR]) > self.cfg.reanchor_distance_m:
@@ -112,6 +113,7 @@ class MapFusion:
             self._scene_height(t, frame, R_n_b)
         elif f.rejections["vo"] >= self.cfg.reset_after_rejections and att is not None:
             f.realigns += 1
+            f.doubt_motion()
             self.gate.restart()
             # the same map: its scale holds, only where it puts the camera now is re-anchored
             f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, f.x[LOG_SCALE],

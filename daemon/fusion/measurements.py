@@ -141,9 +141,11 @@ def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarra
         R[3:, :3] *= -1.0
         gate = f.cfg.gate_chi2_6dof
     frozen = None if scale_from_motion else _without_motion(len(z), abs(u[2]) >= 1.0)
+    disagreement = (z[:3] - h[:3]) * f.scale  # metres, N axes
     ok = gated_update(f, z, h, H, R, gate, frozen)
     fold_alignment(f)
     f.rejections["vo"] = 0 if ok else f.rejections["vo"] + 1
+    f.vo_disagreement = [] if ok else [*f.vo_disagreement, (float(f.t), disagreement)]
     return ok
 
 

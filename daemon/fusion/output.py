@@ -20,13 +20,14 @@ def inflation(cfg: FusionConfig, quality: str) -> float:
     return getattr(cfg, key) if key else 1.0
 
 
-def attitude_noise(cfg: FusionConfig, quality: str) -> np.ndarray:
-    """Covariance of the autopilot's attitude (compass heading noisier than the tilt) plus a
-    floor for the tracker's rotation (rad^2, N frame)."""
+def attitude_noise(cfg: FusionConfig, quality: str, gap_var: float = 0.0) -> np.ndarray:
+    """Covariance of the autopilot's attitude (compass heading noisier than the tilt), plus
+    `gap_var` (rad^2: what the vehicle may have turned since or between its samples,
+    attitude.py), plus a floor for the tracker's rotation (rad^2, N frame)."""
     tilt, heading, vo = np.radians([cfg.attitude_std_deg, cfg.heading_std_deg,
                                     cfg.vo_rotation_std_deg])
     return (np.diag([tilt**2, tilt**2, heading**2])
-            + np.eye(3) * vo**2 * inflation(cfg, quality))
+            + np.eye(3) * (vo**2 * inflation(cfg, quality) + gap_var))
 
 
 def quality_percent(position_cov: np.ndarray, good_std_m: float) -> int:
@@ -51,10 +52,14 @@ def build_estimate(f: NavFilter, cfg: FusionConfig, *, R_l_b: np.ndarray, rot_co
     filter's, with nothing added: the autopilots apply their own floors (VISO_POS_M_NSE,
     EKF2_EVP_NOISE). It describes errors in the local frame, whose north is the autopilot's
     compass north, the frame the autopilot fuses our poses in, so the compass bias is not in
-    it."""
+    it. While the tracker's updates are being rejected, the position's covariance also covers
+    the last disagreement between the map and the filter: either may be the one gone wrong."""
     factor = inflation(cfg, state)
     pose_cov = np.zeros((6, 6))
     pose_cov[:3, :3] = factor * f.P[POS, POS]
+    if f.vo_disagreement:
+        apart = f.vo_disagreement[-1][1]
+        pose_cov[:3, :3] += np.outer(apart, apart)
     pose_cov[3:, 3:] = factor * rot_cov
     vel_cov = np.zeros((6, 6))
     vel_cov[:3, :3] = factor * (R_l_b.T @ f.P[VEL, VEL] @ R_l_b)

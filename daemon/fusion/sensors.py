@@ -57,6 +57,7 @@ class Attitude:
     t: float
     R_n_b: np.ndarray
     rates: np.ndarray
+    gap_var: float = 0.0  # rad^2 per axis: what the vehicle may have turned where no sample is
 
 
 @dataclass(frozen=True)

@@ -87,6 +87,9 @@ class NavFilter:
         self.accel: np.ndarray | None = None  # last IMU specific force, held until the next
         self.t_accel = float("-inf")
         self.rejections = {"range": 0, "baro": 0, "vo": 0}
+        # (time, tracker position - the filter's, metres N) of the tracker updates rejected in a
+        # row: what the filter and the map disagree by until one of them is believed again
+        self.vo_disagreement: list[tuple[float, np.ndarray]] = []
         self.lever = np.array([cfg.camera_x_m, cfg.camera_y_m, cfg.camera_z_m])
 
     @property
@@ -103,13 +106,14 @@ class NavFilter:
         return (self.t, self.x.copy(), self.P.copy(), self.R_nom.copy(), self.p_w0.copy(),
                 self.has_ground, self.has_baro, dict(self.rejections), self.segment,
                 self.accel, self.t_accel, self.realigns, self.converged, self.scale_source,
-                self.scene_ne, self.climb.copy(), self.motion.copy())
+                self.scene_ne, self.climb.copy(), self.motion.copy(), list(self.vo_disagreement))
 
     def restore(self, snap: tuple) -> None:
         """Go back to a snapshot."""
         (self.t, x, P, R_nom, p_w0, self.has_ground, self.has_baro, rejections, self.segment,
          self.accel, self.t_accel, self.realigns, self.converged, self.scale_source,
-         self.scene_ne, climb, motion) = snap
+         self.scene_ne, climb, motion, disagreement) = snap
+        self.vo_disagreement = list(disagreement)
         self.x, self.P = x.copy(), P.copy()
         self.climb, self.motion = climb.copy(), motion.copy()
         self.R_nom, self.p_w0, self.rejections = R_nom.copy(), p_w0.copy(), dict(rejections)
@@ -164,6 +168,25 @@ class NavFilter:
                 P[index, index] = std**2
         self.R_nom = R_n_b @ R_w_b.T
         self.p_w0 = np.asarray(p_w, float).copy()
+
+    def doubt_motion(self) -> None:
+        """The tracker's updates were rejected in a row (vo_disagreement): the map moved, or
+        the filter's own motion went wrong (a corrupt IMU or attitude sample that passed its
+        checks), and nothing tells which. The position takes the last disagreement as
+        covariance and the velocity its rate (a least-squares slope), so whichever was wrong,
+        what is sent covers it, and the next tracker updates can correct the velocity instead
+        of failing their gate against a filter sure of a wrong one."""
+        if not self.vo_disagreement:
+            return
+        times = np.array([t for t, _ in self.vo_disagreement])
+        apart = np.array([d for _, d in self.vo_disagreement])
+        rate = np.zeros(3)
+        if len(times) > 1 and np.ptp(times) > 0:
+            dt = times - times.mean()
+            rate = dt @ (apart - apart.mean(axis=0)) / float(dt @ dt)
+        self.P[POS, POS] += np.outer(apart[-1], apart[-1])
+        self.P[VEL, VEL] += np.outer(rate, rate)
+        self.vo_disagreement = []
 
     def rescale(self, p_w: np.ndarray, R_n_b: np.ndarray, log_scale: float,
                 scale_std: float) -> None:

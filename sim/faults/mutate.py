@@ -69,26 +69,37 @@ def _field_kinds(msg: object) -> dict[str, str]:
 
 def mutate_fields(msg: object, rng: np.random.Generator, count: int | None = None) -> object:
     """A copy of `msg` with 1-3 (or `count`) of its fields changed."""
-    out = copy.copy(msg)
-    kinds = _field_kinds(msg)
-    names = list(kinds)
+    names = list(_field_kinds(msg))
     chosen = rng.choice(names, size=min(count or int(rng.integers(1, 4)), len(names)),
                         replace=False)
+    out = copy.copy(msg)
     for name in chosen:
-        value, kind = getattr(out, name), kinds[name]
-        if isinstance(value, list | tuple):
-            value = list(value)
-            k = int(rng.integers(len(value)))
-            value[k] = (_float_value(value[k], rng) if kind in ("float", "double")
-                        else _int_value(value[k], kind, rng))
-        elif kind in ("float", "double"):
-            value = _float_value(value, rng)
-        elif kind == "char":
-            value = bytes(rng.integers(32, 127, size=int(rng.integers(0, 20)), dtype=np.uint8))
-        else:
-            value = _int_value(value, kind, rng)
-        setattr(out, str(name), value)
+        _change(out, str(name), rng)
     return out
+
+
+def mutate_field(msg: object, name: str, rng: np.random.Generator) -> object:
+    """A copy of `msg` with its field `name` changed."""
+    out = copy.copy(msg)
+    _change(out, name, rng)
+    return out
+
+
+def _change(msg: object, name: str, rng: np.random.Generator) -> None:
+    """Change one field of `msg` in place (one element of an array field)."""
+    value, kind = getattr(msg, name), _field_kinds(msg)[name]
+    if isinstance(value, list | tuple):
+        value = list(value)
+        k = int(rng.integers(len(value)))
+        value[k] = (_float_value(value[k], rng) if kind in ("float", "double")
+                    else _int_value(value[k], kind, rng))
+    elif kind in ("float", "double"):
+        value = _float_value(value, rng)
+    elif kind == "char":
+        value = bytes(rng.integers(32, 127, size=int(rng.integers(0, 20)), dtype=np.uint8))
+    else:
+        value = _int_value(value, kind, rng)
+    setattr(msg, name, value)
 
 
 def shift_time(msg: object, seconds: float) -> object:

@@ -19,7 +19,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from daemon.fusion.sensors import remote_time
 from sim import fusion_sim
 from sim.faults.harness import FaultScore, Packet, Stream, run_stream, score
-from sim.faults.mutate import Packer, mutate_fields, pack_or_none, shift_time
+from sim.faults.mutate import Packer, mutate_field, mutate_fields, pack_or_none, shift_time
 
 AUTOPILOT = (1, 1)
 INTRUDER = (2, 1)  # a second vehicle on the same radio
@@ -93,16 +93,29 @@ def resent_mutated(kinds: tuple[str, ...] | None, share: float = 0.1) -> Callabl
     return make
 
 
-def changed_in_place(share: float = 0.1, nan_only: bool = False) -> Callable:
-    """`share` of every message changed (1-3 fields), or its numbers made NaN/inf."""
+def changed_in_place(share: float = 0.1, nan_only: bool = False,
+                     field: tuple[str, str] | None = None) -> Callable:
+    """`share` of every message changed (1-3 fields), or its numbers made NaN/inf; with `field`
+    = (message type, field name), `share` of that type's messages with that field changed."""
     def make(flight, rng, window):
         items = clean_items(flight)
-        chosen = [i for i in _during(items, window, None) if rng.random() < share]
+        chosen = [i for i in _during(items, window, field[:1] if field else None)
+                  if rng.random() < share]
         for i in chosen:
-            items[i].msg = _non_finite(items[i].msg, rng) if nan_only else mutate_fields(
-                items[i].msg, rng)
+            msg = items[i].msg
+            items[i].msg = (_non_finite(msg, rng) if nan_only
+                            else mutate_field(msg, field[1], rng) if field
+                            else mutate_fields(msg, rng))
         return to_stream(flight, items, window, len(chosen))
     return make
+
+
+def stream_fields(flight: fusion_sim.Flight) -> list[tuple[str, str]]:
+    """(message type, field name) of every field of the messages in `flight`'s stream."""
+    first = {}
+    for item in clean_items(flight):
+        first.setdefault(item.msg.get_type(), item.msg)
+    return [(kind, name) for kind, msg in first.items() for name in msg.fieldnames]
 
 
 def _non_finite(msg: object, rng: np.random.Generator) -> object:

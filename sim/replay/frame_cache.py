@@ -25,7 +25,7 @@ import numpy as np
 
 from sim import disk_cache
 
-KEEP_FLIGHTS = 3  # a few hundred MB: each 450-frame 640x480 flight is ~100 MB of PNG
+KEEP_FLIGHTS = 3  # a few hundred MB: the default 25 s 640x480 flight is ~125 MB of PNG
 IN_USE_S = 3600.0  # a flight or staging folder touched this recently may be in use elsewhere
 STAGING_PREFIX = "staging-"
 
