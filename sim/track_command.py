@@ -184,7 +184,9 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
     report["ba_shortened"] = getattr(mapper, "shortened_ba", 0)
     if memory_every:
         report["memory"] = log.memory
-        report["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        # Linux updates ru_maxrss lazily: a sample taken since may be higher
+        report["peak_rss_mb"] = max([resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+                                     / 1024.0] + [m["rss_mb"] for m in log.memory])
     return report, estimate
 
 
