@@ -89,6 +89,12 @@ class TrackerConfig:
     # the last tracked frame is tried first: a fast turn loses the track where the camera
     # still stands, often far from any keyframe (kf_min_frames apart)
     reloc_last_frame: bool = True
+    # a relocalised pose is a candidate until the next frame, tracked from it, has
+    # reloc_min_matches inliers, quality good and turned at most reloc_confirm_max_turn_deg
+    # from it; the candidate frame gets no pose (a wrong relocalisation is a confident wrong
+    # pose: kitti00_first200 took one 40 deg off without this, RESULTS.md tracker-reloc-verify)
+    reloc_confirm: bool = True
+    reloc_confirm_max_turn_deg: float = 10.0
     # keyframes tried per lost frame (the newest ones; 0 = all)
     reloc_max_keyframes: int = 0
     # while relocalising, a new map is initialised on the side (if reinit_when_lost); it is
@@ -170,6 +176,9 @@ class TrackerConfig:
     # 15 keeps a map's points through a fast turn to relocalise into (tum_fr1_rpy in one map)
     # but costs ATE on tum and hover-down (RESULTS.md: tracker-reloc-tum, tracker-reloc-hover)
     seed_max_failures: int = 5
+    # a candidate whose point projects outside a frame is not searched there (thesis 6.6.3:
+    # only visible candidates are), so turning away does not count as failing to find it
+    seed_skip_unseen: bool = True
     # a new candidate no keyframe matched (ground uncovered by people who stood on it in every
     # earlier keyframe) starts at the depth of the plane through the keyframe's converged
     # points, +- this fraction of its inverse depth, when that plane holds seed_plane_min_fit

@@ -74,10 +74,13 @@ class FrameTracking:
         return FrameResult(frame.t, frame.T_w_c, Quality.GOOD, covariance=cov, n_matches=n,
                            n_attempts=n, n_inliers=n, new_segment=True)
 
-    def resume(self, frame: Frame, m: Matches, cov: np.ndarray) -> FrameResult:
+    def resume(self, frame: Frame, m: Matches, cov: np.ndarray, count: bool = True
+               ) -> FrameResult:
         """Track on from a relocalised frame (its matches m, pose covariance cov): its result,
-        a new segment (the pose may jump) in the same map (relocalized)."""
-        self.matcher.accept(frame, m)
+        a new segment (the pose may jump) in the same map (relocalized); without `count`, the
+        points' found/missed counts are left as they are (a candidate pose, not yet
+        believed)."""
+        self.matcher.accept(frame, m, count)
         self.lost = LostCounter(self.config)
         self.motion = np.eye(4)
         self.last = frame
@@ -85,3 +88,13 @@ class FrameTracking:
                            n_matches=len(m.ids), n_attempts=m.n_attempts,
                            n_inliers=m.n_inliers, new_segment=True, relocalized=True,
                            n_hypotheses=m.n_hypotheses)
+
+    def save(self) -> tuple:
+        """What tracking goes on from (restore puts it back)."""
+        kf = self.keyframes
+        return self.last, self.motion, self.lost, kf.frames_since_kf, kf.kf_visible
+
+    def restore(self, saved: tuple) -> None:
+        """Go on from what save returned (a candidate tracked from was not confirmed)."""
+        kf = self.keyframes
+        self.last, self.motion, self.lost, kf.frames_since_kf, kf.kf_visible = saved

@@ -36,6 +36,7 @@ from vo.mapping import Mapper
 from vo.mapping_control import InlineMapping, MappingBacklog
 from vo.mapping_thread import ThreadedMapping
 from vo.relocalization import Relocalizer
+from vo.relocalizing import Relocalizing
 from vo.reprojector import Reprojector
 from vo.result import FrameResult, Quality, ms_since
 from vo.stepped_mapping import SteppedMapping
@@ -86,7 +87,8 @@ class Tracker:
         self.mapper.after_ba = self._follow_ba
         matcher = MapMatcher(self.camera, cfg, self.map, self.reprojector)
         self.tracking = FrameTracking(cfg, matcher, KeyframePolicy(cfg, self.mapper))
-        self.relocalizer = Relocalizer(self.camera, cfg, matcher)
+        self.relocalizing = Relocalizing(cfg, Relocalizer(self.camera, cfg, matcher),
+                                         self.tracking)
         self.start = MapStart(self.camera, cfg)
         self.state = TrackerState.INITIALIZING
         self.lost_init: Initializer | None = None  # a new map, built while relocalising
@@ -185,10 +187,10 @@ class Tracker:
             return self._initialize(frame, timings)
         if self.state is TrackerState.RELOCALIZING:
             with self.map.lock:
-                result = self._relocalize(frame, timings)
+                result, keyframe = self._relocalize(frame, timings)
             if result.quality == Quality.LOST:
                 return self._initialize_while_lost(frame, timings, result)
-            return result, False
+            return result, keyframe
         with self.map.lock:
             return self.tracking.track(frame, timings)
 
@@ -242,20 +244,21 @@ class Tracker:
             return
         if cfg.relocalize and self.map.keyframes:
             self.state = TrackerState.RELOCALIZING
+            self.relocalizing.reset()
             self.view_since = None
             self.lost_init = (Initializer(self.camera, cfg)
                               if cfg.reinit_when_lost and not self.depth_mode else None)
         elif cfg.reinit_when_lost:
             self._reset()
 
-    def _relocalize(self, frame: Frame, timings: dict[str, float]) -> FrameResult:
-        """Frame's pose in the map, tracking going on from it; quality LOST if none."""
-        found = self.relocalizer.find(frame, timings, self.last)
-        if found is None:
-            return FrameResult(frame.t, None, Quality.LOST)
-        self.state = TrackerState.TRACKING
-        self.lost_init = None
-        return self.tracking.resume(frame, *found)
+    def _relocalize(self, frame: Frame, timings: dict[str, float]) -> tuple[FrameResult, bool]:
+        """Frame's verified pose in the map (vo.relocalizing), tracking going on from it, and
+        whether it becomes a keyframe; quality LOST if none."""
+        result, keyframe = self.relocalizing.step(frame, timings, self.last)
+        if result.has_pose:
+            self.state = TrackerState.TRACKING
+            self.lost_init = None
+        return result, keyframe
 
     def _initialize_while_lost(self, frame: Frame, timings: dict[str, float],
                                lost: FrameResult) -> tuple[FrameResult, bool]:
