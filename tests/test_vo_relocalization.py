@@ -8,7 +8,7 @@ import pytest
 from test_vo_tracker import N_SYNTH, _flight
 from vo_scenes import load_texture, render_plane, small_camera
 
-from sim.metrics import evaluate
+from sim.metrics import align_trajectories, evaluate
 from sim.trajectory import Trajectory
 from vo.config import TrackerConfig
 from vo.se3 import exp_se3
@@ -93,3 +93,27 @@ def test_a_fast_turn_relocalises_in_the_same_map(data_dir):
     gt = Trajectory.from_matrices(t, np.array([truth[x] for x in t]))
     est = Trajectory.from_matrices(t, np.array([p[1] for p in poses]))
     assert evaluate(gt, est, "sim3").ate_rmse_m < 0.01
+
+
+@pytest.mark.parametrize("confirm", [True, False])
+def test_a_stale_frame_after_a_blackout_gets_no_pose(covered_flight, confirm):
+    # the first frame after the blackout is an old one (a camera's stale buffer): it shows a
+    # mapped place 0.3 m and 9 degrees from where the camera is. Relocalising it is right for
+    # its image but wrong for the drone; the next frame, from elsewhere, does not confirm it
+    cam, frames, gt = covered_flight
+    stale = COVERED.stop
+    frames = list(frames)
+    frames[stale] = (frames[stale][0], frames[10][1])
+    tracker = Tracker(cam, TrackerConfig(reloc_confirm=confirm))
+    results = [tracker.process(image, t) for t, image in frames]
+    posed = [r for r in results if r.has_pose]
+    est = Trajectory.from_matrices(np.array([r.t for r in posed]),
+                                   np.array([r.T_w_c for r in posed]))
+    a = align_trajectories(gt, est, "sim3")
+    worst = np.linalg.norm(a.groundtruth.positions - a.estimate.positions, axis=1).max()
+    assert results[stale].has_pose != confirm
+    assert (worst < 0.03) == confirm, worst
+    if confirm:  # relocalised once, from a frame after the stale one, in the same map
+        assert [r.relocalized for r in results[stale:]].index(True) <= 2
+        assert sum(r.relocalized for r in results) == 1
+        assert sum(r.new_segment and not r.relocalized for r in results) == 1
