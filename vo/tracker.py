@@ -4,7 +4,8 @@ A state machine over the stages, in the shape of rpg_svo's frame handler (uzh-rp
 svo/src/frame_handler_mono.cpp): while INITIALIZING, frames go to the initialiser until it
 builds a map (vo.map_start); while TRACKING, each frame is tracked from the last one
 (vo.frame_tracking); once tracking is lost the tracker is RELOCALIZING against the map
-(vo.relocalization) while a new map is initialised on the side, which replaces the old one if
+(vo.relocalization; a pose found is believed once the next frame confirms it:
+vo.relocalizing) while a new map is initialised on the side, which replaces the old one if
 relocalisation keeps failing. With depth maps (issue 30; `depth` in the config) a map starts
 on one frame from its measured depths instead (vo.map_start.build_depth_map), metric, and so
 does a new map while lost; nothing else in tracking changes. Each frame tracked against the
