@@ -90,11 +90,19 @@ class TrackerConfig:
     # still stands, often far from any keyframe (kf_min_frames apart)
     reloc_last_frame: bool = True
     # a relocalised pose is a candidate until the next frame, tracked from it, has
-    # reloc_min_matches inliers, quality good and turned at most reloc_confirm_max_turn_deg
-    # from it; the candidate frame gets no pose (a wrong relocalisation is a confident wrong
-    # pose: kitti00_first200 took one 40 deg off without this, RESULTS.md tracker-reloc-verify)
+    # reloc_min_matches inliers and quality good; the candidate frame gets no pose (a wrong
+    # relocalisation is a confident wrong pose; RESULTS.md: tracker-reloc-verify)
     reloc_confirm: bool = True
-    reloc_confirm_max_turn_deg: float = 10.0
+    # both must have turned from the last pose before the loss no faster than this factor times
+    # the camera's turn rate then, at least reloc_min_turn_rate_deg_s (0: no bound): kitti's
+    # wrong places after its turn came at 3.5-15 deg per frame turning 2 (RESULTS.md:
+    # tracker-reloc-verify)
+    reloc_turn_rate_factor: float = 1.5
+    reloc_min_turn_rate_deg_s: float = 30.0
+    # relocalise only against keyframes covisible with the last tracked frame (the place where
+    # tracking was lost), not every keyframe as the thesis: after its turn kitti00 relocalised
+    # into a look-alike street of its first keyframes (RESULTS.md: tracker-reloc-verify)
+    reloc_covisible_only: bool = True
     # keyframes tried per lost frame (the newest ones; 0 = all)
     reloc_max_keyframes: int = 0
     # while relocalising, a new map is initialised on the side (if reinit_when_lost); it is

@@ -1,8 +1,9 @@
 """The tracker's RELOCALIZING state: a pose the relocaliser (vo.relocalization) finds for a lost
-frame is only a candidate; it is accepted when the next frame, tracked from it as any frame is,
-confirms it (enough inliers, a plausible motion from the candidate). A wrong relocalisation is a
-wrong pose with a confident covariance, so one frame is spent to check it: the candidate frame
-gets no pose, the confirming frame is the relocalised one."""
+frame is only a candidate. It must be reachable from the last pose before the loss (turned no
+faster than the camera was turning then, with some leeway), and the next frame, tracked from it
+as any frame is, must confirm it (enough inliers, good quality, reachable too). A wrong
+relocalisation is a wrong pose with a confident covariance, so one frame is spent to check it:
+the candidate frame gets no pose, the confirming frame is the relocalised one."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from vo.frame_tracking import FrameTracking
 from vo.map_matching import Matches
 from vo.relocalization import Relocalizer
 from vo.result import FrameResult, Quality
-from vo.se3 import inv_se3
+from vo.se3 import inv_se3, rotation_angle_deg
 
 
 @dataclass
@@ -35,7 +36,6 @@ class Relocalizing:
                  tracking: FrameTracking):
         self.config, self.relocalizer, self.tracking = config, relocalizer, tracking
         self.candidate: Candidate | None = None
-        self.refused = 0  # candidates the next frame did not confirm
 
     def reset(self) -> None:
         """Tracking was lost anew: no candidate."""
@@ -52,7 +52,8 @@ class Relocalizing:
                 return confirmed
         found = self.relocalizer.find(frame, timings, last)
         lost = FrameResult(frame.t, None, Quality.LOST)
-        if found is None:
+        if found is None or not self._reachable(last, frame.t, found[0].T,
+                                                self.tracking.turn_rate):
             return lost, False
         if not self.config.reloc_confirm:
             return self.tracking.resume(frame, *found), False
@@ -65,23 +66,31 @@ class Relocalizing:
         the candidate, else None (tracking as before the candidate)."""
         cand, self.candidate = self.candidate, None
         saved = self.tracking.save()
+        last, rate = self.tracking.last, self.tracking.turn_rate
         self.tracking.resume(cand.frame, cand.matches, cand.covariance, count=False)
         result, keyframe = self.tracking.track(frame, timings)
-        if result.has_pose and self._consistent(cand.frame, frame, result):
+        if (result.has_pose and self._confirms(result)
+                and self._reachable(last, frame.t, frame.T_c_w, rate)):
             self.tracking.matcher.count(cand.matches)
             result.new_segment = result.relocalized = True
             return result, keyframe
         self.tracking.restore(saved)
-        self.refused += 1
         return None
 
-    def _consistent(self, cand: Frame, frame: Frame, result: FrameResult) -> bool:
-        """The confirming frame matched the map from the candidate as a tracked frame must
-        (at least reloc_min_matches inliers, quality good) and moved from it no more than
-        reloc_confirm_max_turn_deg."""
+    def _confirms(self, result: FrameResult) -> bool:
+        """The frame tracked from a candidate matched the map as a tracked frame must: at least
+        reloc_min_matches inliers, quality good."""
+        return (result.n_inliers >= self.config.reloc_min_matches
+                and result.quality == Quality.GOOD)
+
+    def _reachable(self, last: Frame | None, t: float, T_c_w: np.ndarray, rate: float) -> bool:
+        """A pose T_c_w at time t turned from the last pose before the loss by no more than
+        the camera could have turned since: reloc_turn_rate_factor times its turn rate then
+        (`rate`, deg/s), at least reloc_min_turn_rate_deg_s. True without a last pose or with
+        reloc_turn_rate_factor 0 (no bound)."""
         cfg = self.config
-        if result.n_inliers < cfg.reloc_min_matches or result.quality != Quality.GOOD:
-            return False
-        rel = frame.T_c_w @ inv_se3(cand.T_c_w)
-        turn = np.degrees(np.arccos(np.clip((np.trace(rel[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
-        return turn <= cfg.reloc_confirm_max_turn_deg
+        if last is None or cfg.reloc_turn_rate_factor <= 0:
+            return True
+        bound = max(cfg.reloc_turn_rate_factor * rate, cfg.reloc_min_turn_rate_deg_s)
+        turned = rotation_angle_deg((T_c_w @ inv_se3(last.T_c_w))[:3, :3])
+        return turned <= bound * (t - last.t)
