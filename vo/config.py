@@ -73,16 +73,16 @@ class TrackerConfig:
     reloc_min_matches: int = 20
     # direct alignment to a keyframe must explain the patches this well before matching
     # (zero-mean residual over patch energy: 0 perfect, ~1 blank image, ~2 unrelated texture);
-    # a frame blurred by a fast turn fits near 1 at the right pose, and the matching after it
-    # decides (RESULTS.md: tracker-reloc-kitti)
-    reloc_max_residual_ratio: float = 1.0
+    # 1.0 let poses 40-120 deg off through on kitti00 and tum_fr1_rpy, also with the checks
+    # below (RESULTS.md: tracker-reloc-verify)
+    reloc_max_residual_ratio: float = 0.5
     # pyramid level at which the image shift to a keyframe is found (phase correlation)
     reloc_shift_level: int = 2
     # a relocalised pose must be this well determined (largest rotation std of its covariance,
     # degrees): matches crowded into the sliver of view shared with a keyframe leave tilt and
     # sideways position confused (seen: 14 deg and 2.7 m off at 1.6 deg std; tracking: < 0.2;
-    # right poses after a fast turn came at 0.5-0.7: RESULTS.md tracker-reloc-kitti)
-    reloc_max_rotation_std_deg: float = 0.7
+    # wrong ones on tum_fr1_rpy came at 0.64-0.67: RESULTS.md tracker-reloc-verify)
+    reloc_max_rotation_std_deg: float = 0.5
     # a turned prior is first aligned turning only (the camera where the keyframe stood), then
     # fully: a fast rotation that lost the track also rolls, which the image shift misses
     reloc_rotation_first: bool = True
@@ -93,16 +93,15 @@ class TrackerConfig:
     # reloc_min_matches inliers and quality good; the candidate frame gets no pose (a wrong
     # relocalisation is a confident wrong pose; RESULTS.md: tracker-reloc-verify)
     reloc_confirm: bool = True
-    # both must have turned from the last pose before the loss no faster than this factor times
-    # the camera's turn rate then, at least reloc_min_turn_rate_deg_s (0: no bound): kitti's
-    # wrong places after its turn came at 3.5-15 deg per frame turning 2 (RESULTS.md:
+    # both must be reachable from the last pose before the loss: turned no faster than this
+    # factor times the camera's turn rate then (at least reloc_min_turn_rate_deg_s), moved by
+    # at most reloc_max_move_depths times the depth of the points they match. Seen: kitti00's
+    # look-alike places after its turn turned at 3.5-15 deg a frame (2 before) and moved
+    # 1-4 depths; tum_fr1_rpy's right relocalisations 0.1-0.3 depths (RESULTS.md:
     # tracker-reloc-verify)
     reloc_turn_rate_factor: float = 1.5
     reloc_min_turn_rate_deg_s: float = 30.0
-    # relocalise only against keyframes covisible with the last tracked frame (the place where
-    # tracking was lost), not every keyframe as the thesis: after its turn kitti00 relocalised
-    # into a look-alike street of its first keyframes (RESULTS.md: tracker-reloc-verify)
-    reloc_covisible_only: bool = True
+    reloc_max_move_depths: float = 0.5
     # keyframes tried per lost frame (the newest ones; 0 = all)
     reloc_max_keyframes: int = 0
     # while relocalising, a new map is initialised on the side (if reinit_when_lost); it is

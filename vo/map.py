@@ -202,14 +202,11 @@ class Map:
             rows = self.obs.kf == slot
             return self.obs.point[rows].copy(), self.obs.uv[rows].copy()
 
-    def covisible(self, point_ids: np.ndarray, exclude: int | None, min_shared: int
-                  ) -> list[int]:
-        """Keyframe slots (but `exclude`) sharing at least `min_shared` of `point_ids`, most
-        shared first."""
+    def covisible(self, point_ids: np.ndarray, exclude: int, min_shared: int) -> list[int]:
+        """Keyframe slots sharing at least `min_shared` of `point_ids`, most shared first."""
         counts = _shared_counts(self.obs.point, self.obs.kf, np.asarray(point_ids, np.int64),
                                 self.points.capacity, len(self.kf_pyr))
-        if exclude is not None:
-            counts[exclude] = 0
+        counts[exclude] = 0
         order = np.argsort(-counts, kind="stable")
         return [int(s) for s in order if counts[s] >= min_shared and s in self.keyframes]
 

@@ -50,17 +50,11 @@ class Relocalizer:
     def _references(self, last: Frame | None):
         """(frame, point ids, level-0 pixels) to align a lost frame to: the last tracked frame
         and its matched points (with reloc_last_frame, unless it is a keyframe), then the
-        keyframes, newest first (at most reloc_max_keyframes, 0 = all); with
-        reloc_covisible_only, only the keyframes that see at least covisible_min_shared of the
-        last frame's points (and the last frame itself if it is one)."""
+        keyframes, newest first (at most reloc_max_keyframes, 0 = all)."""
         cfg = self.config
         if cfg.reloc_last_frame and last is not None and not last.is_keyframe:
             yield last, last.feat_point, last.feat_px
-        slots = list(self.map.keyframes)
-        if cfg.reloc_covisible_only and last is not None:
-            near = set(self.map.covisible(last.feat_point, None, cfg.covisible_min_shared))
-            slots = [s for s in slots if s in near or self.map.keyframes[s] is last]
-        slots.sort(key=lambda s: -self.map.keyframes[s].id)
+        slots = sorted(self.map.keyframes, key=lambda s: -self.map.keyframes[s].id)
         if cfg.reloc_max_keyframes > 0:
             slots = slots[:cfg.reloc_max_keyframes]
         for slot in slots:

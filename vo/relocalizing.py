@@ -53,6 +53,7 @@ class Relocalizing:
         found = self.relocalizer.find(frame, timings, last)
         lost = FrameResult(frame.t, None, Quality.LOST)
         if found is None or not self._reachable(last, frame.t, found[0].T,
+                                                found[0].ids[found[0].inlier],
                                                 self.tracking.turn_rate):
             return lost, False
         if not self.config.reloc_confirm:
@@ -70,7 +71,7 @@ class Relocalizing:
         self.tracking.resume(cand.frame, cand.matches, cand.covariance, count=False)
         result, keyframe = self.tracking.track(frame, timings)
         if (result.has_pose and self._confirms(result)
-                and self._reachable(last, frame.t, frame.T_c_w, rate)):
+                and self._reachable(last, frame.t, frame.T_c_w, frame.feat_point, rate)):
             self.tracking.matcher.count(cand.matches)
             result.new_segment = result.relocalized = True
             return result, keyframe
@@ -83,14 +84,20 @@ class Relocalizing:
         return (result.n_inliers >= self.config.reloc_min_matches
                 and result.quality == Quality.GOOD)
 
-    def _reachable(self, last: Frame | None, t: float, T_c_w: np.ndarray, rate: float) -> bool:
-        """A pose T_c_w at time t turned from the last pose before the loss by no more than
-        the camera could have turned since: reloc_turn_rate_factor times its turn rate then
-        (`rate`, deg/s), at least reloc_min_turn_rate_deg_s. True without a last pose or with
-        reloc_turn_rate_factor 0 (no bound)."""
+    def _reachable(self, last: Frame | None, t: float, T_c_w: np.ndarray, ids: np.ndarray,
+                   rate: float) -> bool:
+        """A pose T_c_w at time t, matching map points ids, is one the camera could have
+        reached from the last pose before the loss: turned by no more than
+        reloc_turn_rate_factor times its turn rate then (`rate`, deg/s; at least
+        reloc_min_turn_rate_deg_s) over the time since, and moved by at most
+        reloc_max_move_depths times the median depth of those points. True without a last
+        pose."""
         cfg = self.config
-        if last is None or cfg.reloc_turn_rate_factor <= 0:
+        if last is None:
             return True
         bound = max(cfg.reloc_turn_rate_factor * rate, cfg.reloc_min_turn_rate_deg_s)
         turned = rotation_angle_deg((T_c_w @ inv_se3(last.T_c_w))[:3, :3])
-        return turned <= bound * (t - last.t)
+        X = self.tracking.matcher.map.points.pos_w[ids] @ T_c_w[:3, :3].T + T_c_w[:3, 3]
+        moved = np.linalg.norm(inv_se3(T_c_w)[:3, 3] - last.position)
+        return (turned <= bound * (t - last.t)
+                and moved <= cfg.reloc_max_move_depths * float(np.median(X[:, 2])))
