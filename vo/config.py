@@ -106,7 +106,7 @@ class TrackerConfig:
     reloc_max_keyframes: int = 0
     # while relocalising, a new map is initialised on the side (if reinit_when_lost); it is
     # taken once relocalisation has failed this many frames with a usable view
-    reinit_after_lost_frames: int = 30
+    reinit_after_lost_frames: int = 60
 
     # keyframes and mapping (6.6)
     kf_min_frames: int = 30
