@@ -17,7 +17,7 @@ from vo.depth_seeds import measured_inverse_depth
 from vo.frame import Frame
 from vo.initialization import best_per_cell
 from vo.map import CANDIDATE, CONVERGED, Map
-from vo.matcher import inverse_depth_sigma, match_epipolar, triangulate_depth
+from vo.matcher import MIN_RHO, inverse_depth_sigma, match_epipolar, triangulate_depth
 from vo.orb import DESC_BYTES, OrbQuery, describe_levels, query
 from vo.se3 import inv_se3, transform
 
@@ -71,13 +71,17 @@ def _measure(params, layout, ref_flat, ref_obs, rho, sigma, T_cur_ref, cur_flat,
 
 
 @numba.njit(cache=True, nogil=True)
-def in_view(params, T_c_w, X, width, height):
-    """True when world point X projects inside a width x height image at pose T_c_w."""
-    x, y, z = transform(T_c_w, X[0], X[1], X[2])
-    if z <= 0.0:
-        return False
-    u, v = project_point(params, x, y, z)
-    return 0.0 <= u < width and 0.0 <= v < height
+def in_view(params, T_cur_ref, f, rho, sigma, width, height):
+    """True when the point on bearing f of a reference camera projects inside a width x height
+    image at T_cur_ref at some inverse depth of its range rho +- 2 sigma (its mean, nearest
+    or farthest): where the epipolar search could find it."""
+    for r in (rho, rho + 2.0 * sigma, max(rho - 2.0 * sigma, MIN_RHO)):
+        x, y, z = transform(T_cur_ref, f[0] / r, f[1] / r, f[2] / r)
+        if z > 0.0:
+            u, v = project_point(params, x, y, z)
+            if 0.0 <= u < width and 0.0 <= v < height:
+                return True
+    return False
 
 
 @numba.njit(cache=True, nogil=True)
@@ -107,10 +111,11 @@ def update_candidates(params, points, idx, keyframes, T_c_w, layout, cur_flat, c
     cam_pos = -(np.ascontiguousarray(T_c_w[:3, :3].T) @ np.ascontiguousarray(T_c_w[:3, 3]))
     for k in range(n):
         p = idx[k]
-        if skip_unseen and not in_view(params, T_c_w, pos_w[p], layout[1][0], layout[2][0]):
-            continue  # out of view: not searched, so no failed search (thesis 6.6.3)
         T_w_h = inv_se3(kf_T_c_w[host[p]])
         T_cur_ref = T_c_w @ T_w_h
+        if skip_unseen and not in_view(params, T_cur_ref, f[p], rho[p], sigma[p],
+                                       layout[1][0], layout[2][0]):
+            continue  # out of view: not searched, so no failed search (thesis 6.6.3)
         ok, x, tau, uc, vc = _measure(params, layout, kf_pyr[host[p]],
                                       (u[p], v[p], level[p], f[p]), rho[p], sigma[p], T_cur_ref,
                                       cur_flat, corners, search, px_angle, query(orb, k))
