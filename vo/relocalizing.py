@@ -70,8 +70,12 @@ class Relocalizing:
         last, rate = self.tracking.last, self.tracking.turn_rate
         self.tracking.resume(cand.frame, cand.matches, cand.covariance, count=False)
         result, keyframe = self.tracking.track(frame, timings)
+        ids = frame.feat_point
+        # reachable from the last pose, and from the candidate in one frame: a frame tracked
+        # from a wrong candidate can still align to its own place
         if (result.has_pose and self._confirms(result)
-                and self._reachable(last, frame.t, frame.T_c_w, frame.feat_point, rate)):
+                and self._reachable(last, frame.t, frame.T_c_w, ids, rate)
+                and self._reachable(cand.frame, frame.t, frame.T_c_w, ids, rate)):
             self.tracking.matcher.count(cand.matches)
             result.new_segment = result.relocalized = True
             return result, keyframe
