@@ -105,8 +105,11 @@ class TrackerConfig:
     # keyframes tried per lost frame (the newest ones; 0 = all)
     reloc_max_keyframes: int = 0
     # while relocalising, a new map is initialised on the side (if reinit_when_lost); it is
-    # taken once relocalisation has failed this many frames with a usable view
-    reinit_after_lost_frames: int = 60
+    # taken once relocalisation has failed this long (seconds) with a usable view: a time, not
+    # a frame count, so a 10 Hz camera does not wait three times longer (30 frames took
+    # tum_fr1_rpy into a new map 6 frames before its way back into the first: RESULTS.md
+    # tracker-reloc-seeds)
+    reinit_after_lost_s: float = 1.5
 
     # keyframes and mapping (6.6)
     kf_min_frames: int = 30

@@ -93,7 +93,7 @@ class Tracker:
         self.start = MapStart(self.camera, cfg)
         self.state = TrackerState.INITIALIZING
         self.lost_init: Initializer | None = None  # a new map, built while relocalising
-        self.view_since: int | None = None  # lost, and the view usable since this frame id
+        self.view_since: float | None = None  # lost, and the view usable since this time
         self.mapping.attach(self.mapper)
 
     def close(self) -> None:
@@ -264,7 +264,7 @@ class Tracker:
     def _initialize_while_lost(self, frame: Frame, timings: dict[str, float],
                                lost: FrameResult) -> tuple[FrameResult, bool]:
         """While relocalising, a new map is initialised on the side; it replaces the old map
-        once relocalisation has failed for reinit_after_lost_frames frames since the view
+        once relocalisation has failed for reinit_after_lost_s seconds since the view
         became usable (the initialiser could first track features into a frame: a covered
         lens does not count)."""
         if self.depth_mode:
@@ -274,9 +274,9 @@ class Tracker:
             return lost, False
         outcome = init_step(init, frame, timings)
         if outcome is not InitOutcome.RESTART and self.view_since is None:
-            self.view_since = frame.id
+            self.view_since = frame.t
         if not isinstance(outcome, InitialMap) or (
-                frame.id - self.view_since < self.config.reinit_after_lost_frames):
+                frame.t - self.view_since < self.config.reinit_after_lost_s):
             return lost, False
         self._reset()
         return self._start_map(init.ref, frame, outcome), True
@@ -284,14 +284,14 @@ class Tracker:
     def _restart_from_depth(self, frame: Frame, timings: dict[str, float],
                             lost: FrameResult) -> tuple[FrameResult, bool]:
         """With depth, a new map from a frame's depth replaces the old one once relocalisation
-        has failed for reinit_after_lost_frames frames since a frame could start one (enough
+        has failed for reinit_after_lost_s seconds since a frame could start one (enough
         corners with depth: a covered lens does not count)."""
         seeds = self._depth_seeds(frame, timings) if self.config.reinit_when_lost else None
         if seeds is None:
             return lost, False
         if self.view_since is None:
-            self.view_since = frame.id
-        if frame.id - self.view_since < self.config.reinit_after_lost_frames:
+            self.view_since = frame.t
+        if frame.t - self.view_since < self.config.reinit_after_lost_s:
             return lost, False
         self._reset()
         return self._start_depth_map(frame, seeds), True
