@@ -63,24 +63,3 @@ def test_a_turn_away_does_not_delete_the_candidates(data_dir, skip_unseen):
     kept = np.isin(pts.status[cand], (CANDIDATE, CONVERGED))
     assert kept.all() if skip_unseen else not kept.any()
 
-
-@pytest.mark.parametrize("good", [False, True])
-def test_blurred_frames_of_a_fast_turn_fail_no_candidate(data_dir, good):
-    # a frame tracked with quality insufficient (blurred by a fast turn) finds none of the
-    # candidates in view; only a good frame counts that as failed searches
-    cam = small_camera()
-    tex = load_texture(data_dir)
-    tracker = Tracker(cam, TrackerConfig())
-    for i in range(40):
-        tracker.process(render_plane(tex, cam, _flight(i)), i / 30.0)
-    pts = tracker.map.points
-    cand = np.flatnonzero(pts.status == CANDIDATE)
-    assert len(cand) >= 20
-    blur = np.full((cam.height, cam.width), 90, np.uint8)
-    for k in range(10):
-        frame = Frame(40 + k, (40 + k) / 30.0, blur, cam, tracker.config.pyramid_levels)
-        frame.T_c_w = _flight(40)
-        frame.tracked_good = good
-        tracker.mapper.step(frame, False)
-    kept = np.isin(pts.status[cand], (CANDIDATE, CONVERGED))
-    assert not kept.any() if good else kept.all()

@@ -191,9 +191,6 @@ class TrackerConfig:
     # it; it kept tum_fr1_rpy's first map, but lingering candidates cost hover-down ATE
     # (RESULTS.md: tracker-reloc-seeds)
     seed_skip_unseen: bool = False
-    # only frames tracked with quality good count a candidate they miss as a failed search:
-    # the blurred frames of a fast turn (quality insufficient) emptied the map to return to
-    seed_fail_only_when_good: bool = True
     # a new candidate no keyframe matched (ground uncovered by people who stood on it in every
     # earlier keyframe) starts at the depth of the plane through the keyframe's converged
     # points, +- this fraction of its inverse depth, when that plane holds seed_plane_min_fit

@@ -127,8 +127,6 @@ class Frame:
         self.feat_px = np.zeros((0, 2))
         self.feat_level = np.zeros(0, dtype=np.int64)
         self.n_visible = 0
-        # tracked with quality good: mapping counts the candidates it misses as failed searches
-        self.tracked_good = True
         self.is_keyframe = False
         self.slot = -1
         # the information of the tracked pose's twist (left perturbation of T_c_w, normalised

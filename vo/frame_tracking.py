@@ -53,7 +53,6 @@ class FrameTracking:
             return result, False
         self.lost.update(quality)
         self.matcher.accept(frame, m)
-        frame.tracked_good = quality == Quality.GOOD
         self.motion = frame.T_c_w @ inv_se3(last.T_c_w)
         dt = frame.t - last.t
         self.turn_rate = rotation_angle_deg(self.motion[:3, :3]) / dt if dt > 0 else 0.0

@@ -94,17 +94,16 @@ def update_candidates(params, points, idx, keyframes, T_c_w, layout, cur_flat, c
     `points` is the point table (host, u, v, level, f, rho, sigma, a, b, rho_range, n_failed,
     n_updates, status, pos_w: PointStore columns, updated in place), `keyframes` the (pyramids,
     T_c_w) of the map's slots, `layout` the pyramids' (offsets, widths, heights), `search` as
-    for match_epipolar, `update` = (px_angle, max_failures, min_inlier, conv_L, skip_unseen,
-    count_failures): the angle of a pixel, failed searches before a point is dropped, the
-    inlier probability below which it is dropped, the linearity index below which it has
-    converged, whether points out of the frame's view are left alone, and whether a search
-    that fails counts towards dropping the point.
+    for match_epipolar, `update` = (px_angle, max_failures, min_inlier, conv_L, skip_unseen): the
+    angle of a pixel, failed searches before a point is dropped, the inlier probability below
+    which it is dropped, the linearity index below which it has converged, and whether points
+    out of the frame's view are left alone.
 
     Returns (found mask, level-0 positions (N, 2), delete mask)."""
     host, u, v, level, f, rho, sigma, a, b, rho_range, n_failed, n_updates, status, pos_w = (
         points)
     kf_pyr, kf_T_c_w = keyframes
-    px_angle, max_failures, min_inlier, conv_L, skip_unseen, count_failures = update
+    px_angle, max_failures, min_inlier, conv_L, skip_unseen = update
     n = idx.shape[0]
     found = np.zeros(n, dtype=np.bool_)
     uv = np.zeros((n, 2))
@@ -123,9 +122,8 @@ def update_candidates(params, points, idx, keyframes, T_c_w, layout, cur_flat, c
         if dry_run:
             continue
         if not ok:
-            if count_failures:
-                n_failed[p] += 1
-                delete[k] = n_failed[p] > max_failures
+            n_failed[p] += 1
+            delete[k] = n_failed[p] > max_failures
             continue
         m, s2, aa, bb = update_seed(rho[p], sigma[p] ** 2, a[p], b[p], x, tau * tau,
                                     rho_range[p])
@@ -237,8 +235,7 @@ class Mapper:
         table = (pts.host, pts.u, pts.v, pts.level, pts.f, pts.rho, pts.sigma, pts.a, pts.b,
                  pts.rho_range, pts.n_failed, pts.n_updates, pts.status, pts.pos_w)
         update = (self.px_angle, cfg.seed_max_failures, cfg.min_inlier_probability,
-                  cfg.convergence_L, cfg.seed_skip_unseen,
-                  frame.tracked_good or not cfg.seed_fail_only_when_good)
+                  cfg.convergence_L, cfg.seed_skip_unseen)
 
         def search_all(dry_run: bool):
             return update_candidates(self.camera.params, table, cand,
