@@ -284,3 +284,33 @@ def test_a_dead_stream_is_asked_for_again_but_reported_once():
     run(keeper, autopilot, t, t + 40.0, accept_all, {"ATTITUDE": 50, "RAW_IMU": 50})
     assert keeper.restarts >= 3  # the barometer is asked for again every REASK_MIN_S
     assert reports == [("no SCALED_PRESSURE: set MAVn_RAW_SENS", mavlink2.MAV_SEVERITY_WARNING)]
+
+
+def test_arrivals_of_a_stream_no_need_rates_stay_bounded():
+    """An ArduPilot streaming PX4's HIGHRES_IMU (tracked for PX4, never rated for ArduPilot):
+    its arrival times must not pile up for the service's lifetime."""
+    keeper = StreamKeeper(Codec(), Watch(), usb=False)
+    autopilot = Autopilot()
+    for k in range(5000):  # 100 s at 50 Hz
+        keeper.on_message(autopilot.stream("HIGHRES_IMU"), 0.02 * k)
+    assert len(keeper.arrivals["HIGHRES_IMU"]) <= WINDOW_S / 0.02 + 1
+
+
+def test_rates_measured_while_the_loop_was_held_up_blame_no_autopilot(caplog):
+    """A starved CPU: the loop ticks 0.8 s late and reads 1 of 5 ATTITUDE messages; that is not
+    the autopilot's stream rate, so no parameter is named until the loop keeps up again."""
+    reports = []
+    keeper = StreamKeeper(Codec(), Watch(), usb=False, report=lambda *a: reports.append(a))
+    autopilot = Autopilot()
+    all_streams = {"ATTITUDE": 50, "RAW_IMU": 50, "SCALED_PRESSURE": 10}
+    t = run(keeper, autopilot, 0.0, 6.0, accept_all, all_streams)
+    caplog.set_level(logging.WARNING)
+    for _ in range(10):  # 8 s held up: a tick every 0.8 s, a few messages each
+        t += 0.8
+        for name in all_streams:
+            keeper.on_message(autopilot.stream(name), t)
+        keeper.tick(t)
+    assert not [r for r in reports if "ATTITUDE" in r[0]]
+    assert sum("held up" in r.getMessage() for r in caplog.records) == 1
+    run(keeper, autopilot, t, t + 20.0, accept_all, {"RAW_IMU": 50, "SCALED_PRESSURE": 10})
+    assert [r for r in reports if "ATTITUDE" in r[0]]  # kept up again: a real outage is said

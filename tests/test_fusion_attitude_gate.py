@@ -56,3 +56,17 @@ def test_corrupt_samples_among_good_ones_are_never_followed():
         kept.append(track.add(attitude(0.05 * k, roll=roll)))
     assert all(kept[k] for k in range(40) if k < 10 or k % 4 == 0)
     assert not any(kept[k] for k in range(10, 40) if k % 4 != 0)
+
+
+def test_a_stream_that_keeps_being_refused_is_said_once_and_its_recovery_too():
+    said: list[str] = []
+    track = AttitudeTrack(timeout_s=0.1, keep_s=5.0, report=said.append)
+    rng = np.random.default_rng(5)
+    for k in range(80):  # 4 s at 20 Hz: three of four samples corrupt from 0.5 s on
+        corrupt = k >= 10 and k % 4 != 0
+        roll = float(rng.uniform(0.2, 0.6)) * rng.choice([-1, 1]) if corrupt else 0.0
+        track.add(attitude(0.05 * k, roll=roll))
+    assert len(said) == 1 and said[0].startswith("ATTITUDE doubted")
+    for k in range(80, 80 + 20 * 11):  # 11 s clean
+        assert track.add(attitude(0.05 * k))
+    assert len(said) == 2 and "used again" in said[1]

@@ -7,8 +7,9 @@ from __future__ import annotations
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
-from daemon.fusion.imu_gate import READMIT_S, SPIKE_FLOOR, ImuGate
+from daemon.fusion.imu_gate import SPIKE_FLOOR, ImuGate
 from daemon.fusion.repeats import Repeats
+from daemon.fusion.stream_health import READMIT_S
 
 HOVER = np.array([0.0, 0.0, -9.81])
 

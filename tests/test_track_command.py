@@ -128,3 +128,17 @@ def test_relocalisation_errors_measure_the_jump_and_the_added_error():
     assert abs(e["jump_rot_err_deg"] - 10.0) < 1e-6 and e["jump_pos_err_m"] < 1e-9
     assert abs(e["rot_err_deg"] - 10.0) < 1e-6 and e["rot_err_before_deg"] < 1e-6
     assert relocalisation_errors(truth, est, segment, np.array([1])) == []  # too few before
+
+
+def test_profile_lists_the_tracker_functions_per_frame(data_dir, capsys):
+    assert main(["track", str(data_dir / "vamr_ex01_checkerboard736"), "--max-frames", "30",
+                 "--profile", "8", "--json", "--quiet"]) == 0
+    profile = json.loads(capsys.readouterr().out)["profile"]
+    assert profile["frames"] == 30 and profile["calls_per_frame"] > 100
+    functions = profile["functions"]
+    assert len(functions) == 8
+    own = [f["own_ms"] for f in functions]
+    assert own == sorted(own, reverse=True) and all(f["cum_ms"] >= f["own_ms"] for f in functions)
+    assert any(f["function"].startswith("vo/") for f in functions)  # the tracker's own code
+    assert main(["track", str(data_dir / "vamr_ex01_checkerboard736"), "--profile", "5",
+                 "--threaded"]) == 2  # cProfile sees one thread: a clear error

@@ -18,11 +18,13 @@ show, so an attitude held through a silence of the autopilot stops being trusted
 from __future__ import annotations
 
 import bisect
+from collections.abc import Callable
 
 import numpy as np
 
 from daemon.fusion.sensors import Attitude
 from daemon.fusion.state import matrix_to_rotvec, rotvec_to_matrix
+from daemon.fusion.stream_health import StreamHealth
 
 MAX_RATE_RAD_S = 10.0  # beyond ArduCopter's ACRO flips (ACRO_RP_RATE 360 deg/s)
 NOISE_RAD = 0.02  # an AHRS's attitude noise between two samples, generously
@@ -50,33 +52,47 @@ def unseen_turn_var(extrapolated_s: float, interpolated_s: float = 0.0) -> float
 
 
 class AttitudeTrack:
-    """ATTITUDE samples sorted by time (arrival order does not matter), kept for `keep_s`."""
+    """ATTITUDE samples sorted by time (arrival order does not matter), kept for `keep_s`;
+    `report(text)` hears when the stream keeps being refused (stream_health.py) and when it is
+    consistent again."""
 
-    def __init__(self, timeout_s: float, keep_s: float):
+    def __init__(self, timeout_s: float, keep_s: float,
+                 report: Callable[[str], None] | None = None):
         self.timeout_s = timeout_s
         self.keep_s = keep_s
         self.times: list[float] = []
         self.samples: list[Attitude] = []
         self.refused = 0
         self._change: list[Attitude] = []  # refused in a row, each agreeing with the one before
+        self.health = StreamHealth("ATTITUDE", "doubted", "refused samples are not used; check "
+                                   "the autopilot's AHRS and the link", report)
 
     def add(self, sample: Attitude) -> bool:
         """Insert a sample in time order and forget those older than keep_s; False (and not
         kept) when it cannot be the vehicle's attitude next to its neighbours."""
-        if not self._plausible(sample, self.times, self.samples):
-            last = self._change[-1:]
-            agrees = bool(last) and self._plausible(sample, [last[0].t], last)
-            self._change = [*self._change, sample] if agrees else [sample]
-            if len(self._change) < STRIKES:
-                self.refused += 1
-                return False
-        self._change = []
+        kept = self._admit(sample)
+        self.health.verdict(sample.t, kept)
+        if not kept:
+            self.refused += 1
+            return False
         i = bisect.bisect_right(self.times, sample.t)
         self.times.insert(i, sample.t)
         self.samples.insert(i, sample)
         cut = bisect.bisect_left(self.times, self.times[-1] - self.keep_s)
         if cut:
             del self.times[:cut], self.samples[:cut]
+        return True
+
+    def _admit(self, sample: Attitude) -> bool:
+        """Plausible next to the kept samples, or the STRIKES-th of refused samples in a row
+        that agree with each other (a real change)."""
+        if not self._plausible(sample, self.times, self.samples):
+            last = self._change[-1:]
+            agrees = bool(last) and self._plausible(sample, [last[0].t], last)
+            self._change = [*self._change, sample] if agrees else [sample]
+            if len(self._change) < STRIKES:
+                return False
+        self._change = []
         return True
 
     @staticmethod

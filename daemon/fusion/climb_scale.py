@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+KEPT = 3000  # pairs (5 min of a 10 Hz barometer): a take-off climb is far shorter
+
 
 @dataclass
 class ClimbScale:
@@ -35,6 +37,8 @@ class ClimbScale:
             self.baro_t = baro_t
             self.z_units.append(float(z_units))
             self.altitude.append(float(altitude))
+            if len(self.z_units) > KEPT:  # a map that never converges must not grow without end
+                del self.z_units[0], self.altitude[0]
 
     def climb_m(self, log_scale: float) -> float:
         """The tracker's height range in metres at scale exp(log_scale)."""

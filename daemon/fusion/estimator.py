@@ -62,7 +62,9 @@ from daemon.mounting import body_from_camera
 from vo.result import Quality
 
 log = logging.getLogger("sdvl.fusion")
-INBOX_LIMIT = 20_000
+# messages waiting for the tracking thread: 10 s of an autopilot streaming 400 a second; older
+# ones would be dropped as late anyway (history_s); 20,000 SCALED_IMU messages measured 14 MB
+INBOX_LIMIT = 4000
 BARO_INTERVAL_S = 0.075  # correlated error: at most ~13 Hz fused (a 10 Hz stream whole, 50 Hz not)
 UNDECIDED_START_S = 2.0  # start moving (velocity unknown) if rest is still undecided by then
 HEIGHT_FRESH_S = 1.0  # the autopilot's own height this close to the start sets ours
@@ -81,7 +83,7 @@ class FusionEstimator:
         self.reset_counter = 0
         self.filter = NavFilter(cfg)
         self.gate = AlignmentGate(cfg, report)
-        self.attitude = AttitudeTrack(cfg.attitude_timeout_s, cfg.history_s + 2.0)
+        self.attitude = AttitudeTrack(cfg.attitude_timeout_s, cfg.history_s + 2.0, report)
         self.clock = ClockMap(cfg.clock_offset_window_s)
         self.timeline = Timeline(cfg.history_s)
         self.sources: dict[str, str] = {}  # "imu"/"baro" -> the message type fused

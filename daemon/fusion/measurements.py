@@ -145,7 +145,8 @@ def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarra
     ok = gated_update(f, z, h, H, R, gate, frozen)
     fold_alignment(f)
     f.rejections["vo"] = 0 if ok else f.rejections["vo"] + 1
-    f.vo_disagreement = [] if ok else [*f.vo_disagreement, (float(f.t), disagreement)]
+    run = [] if ok else [*f.vo_disagreement, (float(f.t), disagreement)]
+    f.vo_disagreement = run[-f.cfg.reset_after_rejections:]  # the run a re-alignment looks at
     return ok
 
 

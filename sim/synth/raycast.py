@@ -187,13 +187,13 @@ def nearest_quads(rays, R, c, geom, bounds):
 
 
 @numba.njit(cache=True, nogil=True)
-def shade(rays, pixel_angle, R, c, geom, tex, gain, hit, pixels, levels, n_levels,
-          background, detail, overlay):
+def shade(rays, pixel_angle, R, c, geom, tex, gain, hit, pixels, levels, n_levels, look):
     """Grey image (float32, 0..255 before effects): each pixel's quad, sampled at the mip level
-    of the pixel's footprint on it. Where a texture is magnified (closer than one texel per
-    pixel) the `detail` texture (id, frequency factor, amplitude; amplitude 0 = none) adds
-    finer structure, fading in over one mip level. Quads with the `overlay` base texture get a
-    second texture on top (see `overlay_sample`)."""
+    of the pixel's footprint on it. `look` = (background grey, detail (3), overlay (5)): where a
+    texture is magnified (closer than one texel per pixel) the detail texture (id, frequency
+    factor, amplitude; amplitude 0 = none) adds finer structure, fading in over one mip level;
+    quads with the overlay's base texture get a second texture on top (see `overlay_sample`)."""
+    background, detail, overlay = look[0], look[1:4], look[4:9]
     h, w = rays.shape[0], rays.shape[1]
     image = np.full((h, w), background, np.float32)
     for r in range(h):
@@ -256,10 +256,10 @@ def render_surfaces(scene: Scene, camera: CameraModel, T_w_c: np.ndarray,
     bounds = quad_bounds(quads, R, c, cols, rows)
     depth, hit = nearest_quads(rays, R, c, quads.geometry, bounds)
     atlas = scene.atlas
+    look = np.array([float(scene.background), *(scene.detail or (0.0, 1.0, 0.0)),
+                     *(scene.overlay or (-1.0, 0.0, 1.0, 0.0, 0.0))], dtype=np.float64)
     image = shade(rays, pixel_angle, R, c, quads.geometry, quads.texture, quads.gain, hit,
-                  atlas.pixels, atlas.levels, atlas.n_levels, float(scene.background),
-                  np.asarray(scene.detail or (0.0, 1.0, 0.0), dtype=np.float64),
-                  np.asarray(scene.overlay or (-1.0, 0.0, 1.0, 0.0, 0.0), dtype=np.float64))
+                  atlas.pixels, atlas.levels, atlas.n_levels, look)
     return Surfaces(image, depth, hit, quads)
 
 
