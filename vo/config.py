@@ -73,8 +73,8 @@ class TrackerConfig:
     reloc_min_matches: int = 20
     # direct alignment to a keyframe must explain the patches this well before matching
     # (zero-mean residual over patch energy: 0 perfect, ~1 blank image, ~2 unrelated texture);
-    # 1.0 let poses 40-120 deg off through on kitti00 and tum_fr1_rpy, also with the checks
-    # below (RESULTS.md: tracker-reloc-verify)
+    # 1.0 let poses 40-120 deg off through on kitti00 and tum_fr1_rpy, also with the
+    # confirmation below (RESULTS.md: tracker-reloc-verify)
     reloc_max_residual_ratio: float = 0.5
     # pyramid level at which the image shift to a keyframe is found (phase correlation)
     reloc_shift_level: int = 2
@@ -106,9 +106,9 @@ class TrackerConfig:
     reloc_max_keyframes: int = 0
     # while relocalising, a new map is initialised on the side (if reinit_when_lost); it is
     # taken once relocalisation has failed this long (seconds) with a usable view: a time, not
-    # a frame count, so a 10 Hz camera does not wait three times longer (30 frames took
-    # tum_fr1_rpy into a new map 6 frames before its way back into the first: RESULTS.md
-    # tracker-reloc-seeds)
+    # a frame count, so a 10 Hz camera does not wait three times longer (with
+    # seed_skip_unseen, 30 frames took tum_fr1_rpy into a new map 6 frames before its way back
+    # into the first: RESULTS.md tracker-reloc-verify)
     reinit_after_lost_s: float = 1.5
 
     # keyframes and mapping (6.6)
