@@ -106,10 +106,10 @@ class TrackerConfig:
     reloc_max_keyframes: int = 0
     # while relocalising, a new map is initialised on the side (if reinit_when_lost); it is
     # taken once relocalisation has failed this long (seconds) with a usable view: a time, not
-    # a frame count, so a 10 Hz camera does not wait three times longer (with
-    # seed_skip_unseen, 30 frames took tum_fr1_rpy into a new map 6 frames before its way back
-    # into the first: RESULTS.md tracker-reloc-verify)
-    reinit_after_lost_s: float = 1.5
+    # a frame count (it was 30), so a 10 Hz camera does not wait three times longer; 1.5 s cost
+    # tum_fr1_rpy frames, but with seed_skip_unseen 1 s is 6 frames short of its way back into
+    # the first map (RESULTS.md: tracker-reloc-verify)
+    reinit_after_lost_s: float = 1.0
 
     # keyframes and mapping (6.6)
     kf_min_frames: int = 30
