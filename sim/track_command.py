@@ -197,11 +197,16 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
     if profiler is not None:
         report["profile"] = profiler.rows(profile_top)
     if memory_every:
-        report["memory"] = log.memory
-        # Linux updates ru_maxrss lazily: a sample taken since may be higher
-        report["peak_rss_mb"] = max([resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-                                     / 1024.0] + [m["rss_mb"] for m in log.memory])
+        add_memory(report, log.memory)
     return report, estimate
+
+
+def add_memory(report: dict, samples: list[dict]) -> None:
+    """Put the memory samples and the peak resident memory (MB) into a report."""
+    report["memory"] = samples
+    # Linux updates ru_maxrss lazily: a sample taken since may be higher
+    report["peak_rss_mb"] = max([resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0]
+                                + [m["rss_mb"] for m in samples])
 
 
 @dataclass
