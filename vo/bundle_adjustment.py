@@ -293,6 +293,14 @@ def cost(p: Problem, T: np.ndarray, rho: np.ndarray, keep: np.ndarray) -> float:
     return 0.5 * float(np.sum(residuals(x, p, keep) ** 2))
 
 
+def truncated_cost(p: Problem, T: np.ndarray, rho: np.ndarray) -> float:
+    """The cost with every observation's squared error capped at the chi-square bound (the
+    robust kernel the outlier cut stands for): comparable between solutions whatever each
+    solver dropped."""
+    keep = inliers(p, T, rho)
+    return cost(p, T, rho, keep) + 0.5 * CHI2_2DOF_95 * float(np.sum(~keep))
+
+
 def log_se3(T: np.ndarray) -> np.ndarray:
     """The twist (v, w) with exp_se3(twist) = T."""
     w = Rotation.from_matrix(T[:3, :3]).as_rotvec()
