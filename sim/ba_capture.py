@@ -15,7 +15,7 @@ from vo import bundle_adjustment
 from vo.bundle_adjustment import Problem
 from vo.se3 import inv_se3
 
-MIN_ALIGN = 3  # keyframes besides the free ones to align the map to the truth
+MIN_ALIGN = 3  # keyframes to align the map to the truth with
 
 
 @dataclass
@@ -27,7 +27,7 @@ class Captured:
     gated: bool  # its rms was below ba_min_rms_px: the tracker did not solve it
     window_T: np.ndarray  # (A, 4, 4) T_c_w of every keyframe of the map at capture
     window_gt: np.ndarray  # (A, 3) their true camera centres (NaN: no ground truth)
-    free_index: np.ndarray  # (n_free,) the problem's free keyframes as indices into window
+    slot_index: np.ndarray  # (K,) the problem's keyframes (free first) as indices into window
 
 
 def capture(sequence, config, label: str) -> list[Captured]:
@@ -43,8 +43,8 @@ def capture(sequence, config, label: str) -> list[Captured]:
     def observe(problem: Problem, map_) -> None:
         slots = np.array(sorted(map_.keyframes), dtype=np.int64)
         times = np.array([map_.keyframes[int(s)].t for s in slots])
-        free = np.searchsorted(slots, problem.slots[:problem.n_free])
-        raw.append((problem, map_.kf_T_c_w[slots].copy(), times, free))
+        raw.append((problem, map_.kf_T_c_w[slots].copy(), times,
+                     np.searchsorted(slots, problem.slots)))
 
     bundle_adjustment.PROBLEM_OBSERVERS.append(observe)
     try:
@@ -52,7 +52,7 @@ def capture(sequence, config, label: str) -> list[Captured]:
     finally:
         bundle_adjustment.PROBLEM_OBSERVERS.remove(observe)
     return [Captured(label, p, p.rms_px() < config.ba_min_rms_px, T, _true_centres(
-        sequence.groundtruth, t), free) for p, T, t, free in raw]
+        sequence.groundtruth, t), index) for p, T, t, index in raw]
 
 
 def _true_centres(groundtruth, times: np.ndarray) -> np.ndarray:
@@ -67,17 +67,23 @@ def _true_centres(groundtruth, times: np.ndarray) -> np.ndarray:
 def free_keyframe_errors(c: Captured, T: np.ndarray) -> np.ndarray | None:
     """Distances (ground-truth units) of the free keyframes' centres from the truth when the
     problem's keyframes are at T (its slots' T_c_w), after the Sim(3) that maps the centres of
-    the map's other keyframes onto the truth (the free ones do not pick the alignment, so it
-    favours neither the start nor a solution); None without enough ground truth."""
+    its fixed keyframes onto the truth (or of all the map's other keyframes when fewer than 3
+    are fixed): they do not move, so the alignment favours neither the start nor a solution,
+    and being the free ones' neighbours, it measures the local error, not the drift; None
+    without enough ground truth."""
+    p = c.problem
     centres = np.array([inv_se3(t)[:3, 3] for t in c.window_T])
-    others = np.ones(len(centres), bool)
-    others[c.free_index] = False
-    others &= np.isfinite(c.window_gt).all(axis=1)
-    if others.sum() < MIN_ALIGN or not np.isfinite(c.window_gt[c.free_index]).all():
+    known = np.isfinite(c.window_gt).all(axis=1)
+    free = c.slot_index[:p.n_free]
+    ref = c.slot_index[p.n_free:]
+    ref = ref[known[ref]]
+    if len(ref) < MIN_ALIGN:
+        ref = np.setdiff1d(np.flatnonzero(known), free)
+    if len(ref) < MIN_ALIGN or not known[free].all():
         return None
-    R, t, s = umeyama(centres[others], c.window_gt[others], with_scale=True)
-    free = np.array([inv_se3(T[k])[:3, 3] for k in range(c.problem.n_free)])
-    return np.linalg.norm(s * free @ R.T + t - c.window_gt[c.free_index], axis=1)
+    R, t, s = umeyama(centres[ref], c.window_gt[ref], with_scale=True)
+    moved = np.array([inv_se3(T[k])[:3, 3] for k in range(p.n_free)])
+    return np.linalg.norm(s * moved @ R.T + t - c.window_gt[free], axis=1)
 
 
 def save(captures: list[Captured], path: Path) -> None:

@@ -27,7 +27,7 @@ def _captured(seed: int = 0) -> tuple[Captured, np.ndarray]:
     window_T = np.concatenate((p.T0, more))
     centres = np.array([inv_se3(T)[:3, 3] for T in window_true])
     return Captured("synthetic w- s0", p, False, window_T, SCALE * centres @ R_GT.T + SHIFT,
-                    np.arange(p.n_free)), T_true
+                    np.arange(len(p.slots))), T_true
 
 
 def test_free_keyframe_errors_are_in_the_truths_units_after_the_others_alignment():
@@ -36,7 +36,7 @@ def test_free_keyframe_errors_are_in_the_truths_units_after_the_others_alignment
     off = [np.linalg.norm(inv_se3(c.problem.T0[k])[:3, 3] - inv_se3(T_true[k])[:3, 3])
            for k in range(c.problem.n_free)]
     np.testing.assert_allclose(free_keyframe_errors(c, c.problem.T0), SCALE * np.array(off))
-    c.window_gt[4:] = np.nan  # only the two fixed keyframes left to align with: not enough
+    c.window_gt[4:] = np.nan  # the two fixed keyframes alone are not enough to align with
     assert free_keyframe_errors(c, T_true) is None
 
 
