@@ -6,6 +6,7 @@ least_squares methods, GTSAM), and print per solver the final cost, the time per
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -35,6 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a tracker parameter for capture and solving (repeatable)")
     parser.add_argument("--solvers", default="trf,gtsam",
                         help=f"comma-separated, out of {', '.join(SOLVERS)} (default trf,gtsam)")
+    parser.add_argument("--prior-scale", default="1,1", metavar="POSE,DEPTH",
+                        help="multiply the captured problems' pose and depth prior weights "
+                             "(0: without; default 1,1): what the priors hold back")
     parser.add_argument("--all", action="store_true",
                         help="also the problems below ba_min_rms_px (the tracker skips them)")
     parser.add_argument("--save", type=Path, default=None, metavar="DIR",
@@ -60,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
     settings = _settings(args.set)
     config = TrackerConfig.from_dict(settings)
     captures = load(args.load) if args.load is not None else _capture_all(args, settings)
-    captures = [c for c in captures if args.all or not c.gated]
+    captures = [scaled_priors(c, *_prior_scale(args.prior_scale))
+                for c in captures if args.all or not c.gated]
     if not captures:
         raise InputError("no BA problem was captured (is local BA on and did tracking run?)")
     rows = [solve_row(c, s, config) for c in captures for s in solvers]
@@ -77,6 +82,29 @@ def _settings(items: list[str]) -> dict:
     if len(found) != 1:
         raise InputError("ba-bench: --set takes one value per parameter")
     return dict(found[0].parameters)
+
+
+def _prior_scale(text: str) -> tuple[float, float]:
+    """--prior-scale POSE,DEPTH."""
+    try:
+        pose, depth = (float(v) for v in text.split(","))
+    except ValueError:
+        raise InputError(f"--prior-scale takes two numbers POSE,DEPTH, not {text!r}") from None
+    if min(pose, depth) < 0:
+        raise InputError("--prior-scale: the factors must be 0 or more")
+    return pose, depth
+
+
+def scaled_priors(c: Captured, pose: float, depth: float) -> Captured:
+    """c with its problem's pose prior square-root informations times `pose` and its depth
+    prior weights times `depth` (0: without)."""
+    p = c.problem
+    if pose == 1.0 and depth == 1.0:
+        return c
+    U = None if p.pose_sqrt_info is None or pose == 0 else p.pose_sqrt_info * pose
+    # a zero weight would leave a point free along its ray: a negligible one only fixes gauge
+    w = p.prior_w * max(depth, 1e-6)
+    return dataclasses.replace(c, problem=dataclasses.replace(p, pose_sqrt_info=U, prior_w=w))
 
 
 def _capture_all(args: argparse.Namespace, settings: dict) -> list[Captured]:

@@ -9,6 +9,7 @@ import pytest
 from test_vo_bundle_adjustment import _problem
 
 from sdvl.cli import main
+from sim.ba_bench_command import scaled_priors
 from sim.ba_capture import Captured, free_keyframe_errors, save
 from vo.se3 import exp_se3, inv_se3
 
@@ -56,3 +57,14 @@ def test_bench_says_what_is_wrong(tmp_path, capsys):
     assert "no captured BA problems" in capsys.readouterr().err
     assert main(["ba-bench", "--solvers", "ceres", "--load", str(tmp_path)]) == 2
     assert "unknown ceres" in capsys.readouterr().err
+
+
+def test_prior_scales_reach_the_problem():
+    c, _ = _captured()
+    c.problem.pose_sqrt_info = np.ones((c.problem.n_free, 6, 6))
+    assert scaled_priors(c, 1.0, 1.0) is c
+    without = scaled_priors(c, 0.0, 2.0).problem
+    assert without.pose_sqrt_info is None
+    np.testing.assert_allclose(without.prior_w, 2.0 * c.problem.prior_w)
+    assert scaled_priors(c, 3.0, 0.0).problem.pose_sqrt_info.max() == 3.0
+    assert scaled_priors(c, 3.0, 0.0).problem.prior_w.max() < 1e-5 * c.problem.prior_w.min()
