@@ -144,6 +144,7 @@ def solve_row(c: Captured, solver: str, config) -> dict:
     seconds = time.perf_counter() - start
     before, after = free_keyframe_errors(c, p.T0), free_keyframe_errors(c, T)
     return {"sequence": c.label.split(" ")[0], "solver": solver,
+            "size": (p.n_free, len(p.slots) - p.n_free, len(p.points), len(p.obs_kf)),
             "cost0": ba.truncated_cost(p, p.T0, p.rho0), "cost": ba.truncated_cost(p, T, rho),
             "kept": float(keep.mean()), "ms": 1000.0 * seconds,
             "err_before": None if before is None else float(before.mean()),
@@ -151,7 +152,8 @@ def solve_row(c: Captured, solver: str, config) -> dict:
 
 
 def summaries(rows: list[dict], solvers: list[str]) -> list[dict]:
-    """Per sequence and solver: problems, median final/start truncated cost, median cost over the
+    """Per sequence and solver: problems, their median size (free and fixed keyframes, points,
+    observations), median final/start truncated cost, median cost over the
     first solver's on the same problem, observations kept, ms median and p95, free keyframes'
     median error before and after, and on how many problems they moved closer / away."""
     out = []
@@ -165,6 +167,7 @@ def summaries(rows: list[dict], solvers: list[str]) -> list[dict]:
             b, a = (np.array(v) for v in zip(*truth, strict=True)) if truth else ([], [])
             out.append({
                 "sequence": seq, "solver": solver, "problems": len(mine),
+                "size_median": [float(v) for v in np.median([r["size"] for r in mine], axis=0)],
                 "cost_ratio": float(np.median(cost / np.array([r["cost0"] for r in mine]))),
                 "cost_vs_first": float(np.median(cost / np.maximum(first, 1e-12))),
                 "kept": float(np.mean([r["kept"] for r in mine])),
@@ -182,7 +185,9 @@ def format_summary(s: dict) -> str:
     truth = ("no ground truth" if not s["with_truth"] else
              f"free kf error median {s['err_before_m']:.4f} -> {s['err_after_m']:.4f} m, "
              f"closer on {s['closer']}, farther on {s['farther']} of {s['with_truth']}")
-    return (f"{s['sequence']:<18} {s['solver']:<7} {s['problems']:>4} problems  cost "
+    free, fixed, points, obs = s["size_median"]
+    return (f"{s['sequence']:<18} {s['solver']:<7} {s['problems']:>4} problems (median "
+            f"{free:g} free + {fixed:g} fixed keyframes, {points:g} points, {obs:g} obs)  cost "
             f"x{s['cost_ratio']:.3f} of start, x{s['cost_vs_first']:.3f} of first solver's  "
             f"kept {100 * s['kept']:.1f}%  ms median {s['ms_median']:.1f} p95 "
             f"{s['ms_p95']:.1f}  {truth}")
