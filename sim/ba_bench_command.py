@@ -36,9 +36,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a tracker parameter for capture and solving (repeatable)")
     parser.add_argument("--solvers", default="trf,gtsam",
                         help=f"comma-separated, out of {', '.join(SOLVERS)} (default trf,gtsam)")
-    parser.add_argument("--prior-scale", default="1,1", metavar="POSE,DEPTH",
+    parser.add_argument("--prior-scale", nargs="+", default=["1,1"], metavar="POSE,DEPTH",
                         help="multiply the captured problems' pose and depth prior weights "
-                             "(0: without; default 1,1): what the priors hold back")
+                             "(0: without; default 1,1); several: each solver with each, to "
+                             "see what the priors hold back")
     parser.add_argument("--all", action="store_true",
                         help="also the problems below ba_min_rms_px (the tracker skips them)")
     parser.add_argument("--save", type=Path, default=None, metavar="DIR",
@@ -64,12 +65,16 @@ def run(args: argparse.Namespace) -> int:
     settings = _settings(args.set)
     config = TrackerConfig.from_dict(settings)
     captures = load(args.load) if args.load is not None else _capture_all(args, settings)
-    captures = [scaled_priors(c, *_prior_scale(args.prior_scale))
-                for c in captures if args.all or not c.gated]
+    scales = [_prior_scale(text) for text in args.prior_scale]
+    captures = [c for c in captures if args.all or not c.gated]
     if not captures:
         raise InputError("no BA problem was captured (is local BA on and did tracking run?)")
-    rows = [solve_row(c, s, config) for c in captures for s in solvers]
-    for line in summaries(rows, solvers):
+    runs = [(solver, scale) for scale in scales for solver in solvers]
+    labels = [solver if scale == (1.0, 1.0) else f"{solver} priors {scale[0]:g},{scale[1]:g}"
+              for solver, scale in runs]
+    rows = [solve_row(scaled_priors(c, *scale), solver, label, config) for c in captures
+            for (solver, scale), label in zip(runs, labels, strict=True)]
+    for line in summaries(rows, labels):
         print(json.dumps(line) if args.json else format_summary(line), flush=True)
     return 0
 
@@ -132,10 +137,10 @@ def _capture_all(args: argparse.Namespace, settings: dict) -> list[Captured]:
     return out
 
 
-def solve_row(c: Captured, solver: str, config) -> dict:
-    """One problem solved by one solver: truncated cost before and after (ba.truncated_cost),
-    observations kept, time,
-    mean distance of the free keyframes from the truth before and after (None: no truth)."""
+def solve_row(c: Captured, solver: str, label: str, config) -> dict:
+    """One problem solved by one solver (a row labelled `label`): truncated cost before and
+    after (ba.truncated_cost), observations kept, time, mean distance of the free keyframes
+    from the truth before and after (None: no truth)."""
     from vo import bundle_adjustment as ba
 
     p = c.problem
@@ -143,7 +148,7 @@ def solve_row(c: Captured, solver: str, config) -> dict:
     T, rho, keep = ba.solve(p, config.ba_first_iterations, config.ba_second_iterations, solver)
     seconds = time.perf_counter() - start
     before, after = free_keyframe_errors(c, p.T0), free_keyframe_errors(c, T)
-    return {"sequence": c.label.split(" ")[0], "solver": solver,
+    return {"sequence": c.label.split(" ")[0], "solver": label,
             "size": (p.n_free, len(p.slots) - p.n_free, len(p.points), len(p.obs_kf)),
             "cost0": ba.truncated_cost(p, p.T0, p.rho0), "cost": ba.truncated_cost(p, T, rho),
             "kept": float(keep.mean()), "ms": 1000.0 * seconds,
@@ -186,7 +191,7 @@ def format_summary(s: dict) -> str:
              f"free kf error median {s['err_before_m']:.4f} -> {s['err_after_m']:.4f} m, "
              f"closer on {s['closer']}, farther on {s['farther']} of {s['with_truth']}")
     free, fixed, points, obs = s["size_median"]
-    return (f"{s['sequence']:<18} {s['solver']:<7} {s['problems']:>4} problems (median "
+    return (f"{s['sequence']:<18} {s['solver']:<20} {s['problems']:>4} problems (median "
             f"{free:g} free + {fixed:g} fixed keyframes, {points:g} points, {obs:g} obs)  cost "
             f"x{s['cost_ratio']:.3f} of start, x{s['cost_vs_first']:.3f} of first solver's  "
             f"kept {100 * s['kept']:.1f}%  ms median {s['ms_median']:.1f} p95 "
