@@ -56,6 +56,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "with the sequence's depth maps: metric, SE(3) alignment) or "
                              "rgbd-sift (the RGB-D odometry baseline, needs depth; SE(3) "
                              "alignment)")
+    parser.add_argument("--profile", type=int, default=None, metavar="N",
+                        help="profile the tracker's calls (cProfile) and list the N functions "
+                             "with the most own time per frame, and Python calls per frame")
     parser.add_argument("--json", action="store_true", help="print one JSON object at the end")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
@@ -103,6 +106,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--max-frames must be positive")
     if args.memory is not None and args.memory <= 0:
         raise InputError("--memory must be positive")
+    if args.profile is not None and (args.profile <= 0 or args.threaded):
+        raise InputError("--profile needs a positive count and no --threaded (cProfile sees "
+                         "one thread: mapping must run in the tracking thread)")
     slow = None
     if args.mapping_period is not None:
         if args.threaded or args.mapping_period < 1 or args.mapping_delay < 0:
@@ -122,7 +128,8 @@ def run(args: argparse.Namespace) -> int:
     rows: list[dict] | None = None if args.frames_csv is None else []
     report, estimate = track_sequence(sequence, config, args.threaded, args.max_frames,
                                       args.quiet, args.memory, frame_rows=rows,
-                                      slow_mapping=slow, method=args.method)
+                                      slow_mapping=slow, method=args.method,
+                                      profile_top=args.profile)
     if args.out is not None and estimate is not None:
         write_tum(estimate, args.out)
     if rows is not None:
@@ -135,20 +142,25 @@ def run(args: argparse.Namespace) -> int:
 def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
                    quiet: bool, memory_every: int | None = None,
                    paced: bool = False, frame_rows: list[dict] | None = None,
-                   slow_mapping: tuple[int, int] | None = None, method: str = "sdvl"
-                   ) -> tuple[dict, Trajectory | None]:
+                   slow_mapping: tuple[int, int] | None = None, method: str = "sdvl",
+                   profile_top: int | None = None) -> tuple[dict, Trajectory | None]:
     """Run the tracker over a sequence: the report (see build_report) and the trajectory;
     with `memory_every`, the report has "memory" samples and "peak_rss_mb"; `paced` offers
     each frame no earlier than its timestamp after the first (the camera's rate, so a mapping
     thread works in the gaps as in flight) instead of as fast as tracking goes; `frame_rows`
     gets one frame_row per frame tracked; `slow_mapping` (period, delay) emulates a slow
     mapping thread (sim.slow_mapping), and the report counts the frames it "skipped";
-    `method` picks the tracker (sim.track_methods)."""
+    `method` picks the tracker (sim.track_methods); `profile_top` profiles the tracker's calls
+    and puts that many functions in the report's "profile" (sim.track_profile)."""
     from sim.slow_mapping import SlowMapping
+    from sim.track_profile import FrameProfiler
 
     tracker = build_tracker(method, sequence, config, threaded, slow_mapping is not None)
     offer = tracker.process if slow_mapping is None else SlowMapping(tracker,
                                                                      *slow_mapping).offer
+    profiler = FrameProfiler() if profile_top else None
+    if profiler is not None:
+        offer = profiler.wrap(offer)
     log = TrackLog(frame_rows)
     pace = camera_rate() if paced else lambda t: None
     bar = progress_bar("track", min(max_frames or len(sequence), len(sequence)), enabled=not quiet)
@@ -178,6 +190,8 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
     mapper = getattr(tracker, "mapper", None)
     report["ba_skipped"] = getattr(mapper, "skipped_ba", 0)
     report["ba_shortened"] = getattr(mapper, "shortened_ba", 0)
+    if profiler is not None:
+        report["profile"] = profiler.rows(profile_top)
     if memory_every:
         report["memory"] = log.memory
         report["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
@@ -352,4 +366,8 @@ def format_report(r: dict) -> str:
     lines.append("stage          median ms    p95 ms")
     for name, med in r["stages"].items():
         lines.append(f"{name:<14} {med:9.2f} {r['stages_p95'][name]:9.2f}")
+    if "profile" in r:
+        from sim.track_profile import profile_lines
+
+        lines += profile_lines(r["profile"])
     return "\n".join(lines)

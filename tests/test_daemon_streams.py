@@ -284,3 +284,13 @@ def test_a_dead_stream_is_asked_for_again_but_reported_once():
     run(keeper, autopilot, t, t + 40.0, accept_all, {"ATTITUDE": 50, "RAW_IMU": 50})
     assert keeper.restarts >= 3  # the barometer is asked for again every REASK_MIN_S
     assert reports == [("no SCALED_PRESSURE: set MAVn_RAW_SENS", mavlink2.MAV_SEVERITY_WARNING)]
+
+
+def test_arrivals_of_a_stream_no_need_rates_stay_bounded():
+    """An ArduPilot streaming PX4's HIGHRES_IMU (tracked for PX4, never rated for ArduPilot):
+    its arrival times must not pile up for the service's lifetime."""
+    keeper = StreamKeeper(Codec(), Watch(), usb=False)
+    autopilot = Autopilot()
+    for k in range(5000):  # 100 s at 50 Hz
+        keeper.on_message(autopilot.stream("HIGHRES_IMU"), 0.02 * k)
+    assert len(keeper.arrivals["HIGHRES_IMU"]) <= WINDOW_S / 0.02 + 1

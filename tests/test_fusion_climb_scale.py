@@ -46,3 +46,12 @@ def test_rescale_puts_the_vehicle_where_the_map_says() -> None:
     assert np.allclose(f.x[POS], [0.0, 0.0, -2.0 * SCALE])
     assert np.isclose(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]), 0.03)
     assert np.all(np.linalg.eigvalsh(f.P) > -1e-12)
+
+
+def test_a_map_that_never_converges_keeps_a_bounded_climb() -> None:
+    from daemon.fusion.climb_scale import KEPT
+
+    climb = ClimbScale()
+    for k in range(KEPT + 500):  # a long hover without convergence: one pair per reading
+        climb.add(0.3, float(k), 10.0)
+    assert len(climb.z_units) == len(climb.altitude) == KEPT

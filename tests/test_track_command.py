@@ -106,3 +106,17 @@ def test_emulated_slow_mapping_skips_frames(data_dir, capsys):
     assert main(["track", str(data_dir / "vamr_ex01_checkerboard736"), "--threaded",
                  "--mapping-period", "2"]) == 2
     assert "--mapping-period" in capsys.readouterr().err
+
+
+def test_profile_lists_the_tracker_functions_per_frame(data_dir, capsys):
+    assert main(["track", str(data_dir / "vamr_ex01_checkerboard736"), "--max-frames", "30",
+                 "--profile", "8", "--json", "--quiet"]) == 0
+    profile = json.loads(capsys.readouterr().out)["profile"]
+    assert profile["frames"] == 30 and profile["calls_per_frame"] > 100
+    functions = profile["functions"]
+    assert len(functions) == 8
+    own = [f["own_ms"] for f in functions]
+    assert own == sorted(own, reverse=True) and all(f["cum_ms"] >= f["own_ms"] for f in functions)
+    assert any(f["function"].startswith("vo/") for f in functions)  # the tracker's own code
+    assert main(["track", str(data_dir / "vamr_ex01_checkerboard736"), "--profile", "5",
+                 "--threaded"]) == 2  # cProfile sees one thread: a clear error
