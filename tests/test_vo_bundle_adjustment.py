@@ -434,3 +434,20 @@ def test_gtsam_stops_early_and_a_missing_gtsam_is_a_clear_error(monkeypatch):
     monkeypatch.setattr(importlib.util, "find_spec", lambda name: None)
     with pytest.raises(InputError, match="pip install 'sdvl-companion\\[gtsam\\]'"):
         TrackerConfig(ba_method="gtsam")
+
+
+def test_problem_observers_see_each_problem_as_built():
+    """What `sdvl ba-bench` captures: the problem before it is solved, with its map."""
+    map_, _, config = _map(np.random.default_rng(3), {2: 60, 3: 60})
+    start = map_.kf_T_c_w.copy()
+    seen = []
+    ba.PROBLEM_OBSERVERS.append(lambda p, m: seen.append((p, m)))
+    try:
+        assert ba.local_ba(map_, 4, CAMERA, config) > 0
+    finally:
+        ba.PROBLEM_OBSERVERS.pop()
+    [(problem, observed_map)] = seen
+    assert observed_map is map_
+    assert 4 in problem.slots[:problem.n_free].tolist()
+    np.testing.assert_array_equal(problem.T0, start[problem.slots])
+    assert not np.array_equal(map_.kf_T_c_w[4], start[4])  # solved after it was seen
