@@ -19,7 +19,14 @@ import cv2
 import numpy as np
 
 from calib.camera import CameraModel
-from daemon.frames import BadFrame, Frame, FrameCheck, FrameError, LatestSlot
+from daemon.frames import (
+    BadFrame,
+    Frame,
+    FrameCheck,
+    FrameError,
+    LatestSlot,
+    UnreadableDepth,
+)
 from daemon.health import Health
 from daemon.recordings import Recording
 from sdvl.errors import InputError
@@ -44,7 +51,9 @@ class FrameSource(Protocol):
         """Open the device or file; OSError when it is not there (the caller retries)."""
 
     def read(self) -> tuple[float, float, np.ndarray] | None:
-        """The next (t_source, t_capture, grey image); None at the end; OSError if it broke."""
+        """The next (t_source, t_capture, grey image); None at the end; OSError if it broke.
+        A source with depth adds the frame's depth map (float32 metres registered to the
+        image, None or frames.UnreadableDepth when it has none) as a fourth element."""
 
     def close(self) -> None:
         """Release the device."""
@@ -142,32 +151,56 @@ class OpenCVSource:
 
 class SequenceSource:
     """Anything with `.frames()` yielding (t, grey image) and a `.camera` (e.g. a
-    sim.sequence.Sequence): played at its timestamps or as fast as tracking takes frames."""
+    sim.sequence.Sequence): played at its timestamps or as fast as tracking takes frames.
+    With `depth`, each frame comes with the sequence's `depth(i)` map (a depth camera)."""
 
     finite, blocks = True, False
 
-    def __init__(self, sequence: object, realtime: bool = True, name: str | None = None):
+    def __init__(self, sequence: object, realtime: bool = True, name: str | None = None,
+                 depth: bool = False):
+        if depth:
+            need_depth(sequence)
         self.sequence = sequence
         self.name = name or getattr(sequence, "name", "sequence")
         self.camera = getattr(sequence, "camera", None)
         self.live = realtime
+        self.depth = depth
         self._pacer = Pacer() if realtime else None
         self._frames: Iterator | None = None
 
     def open(self) -> None:
         if self._frames is None:
-            self._frames = iter(self.sequence.frames())
+            self._frames = enumerate(self.sequence.frames())
 
-    def read(self) -> tuple[float, float, np.ndarray] | None:
+    def read(self) -> tuple | None:
         item = next(self._frames, None)
         if item is None:
             return None
-        t, image = item
+        index, (t, image) = item
+        depth = sequence_depth(self.sequence, index) if self.depth else None
         t_capture = self._pacer.wait(float(t)) if self._pacer else time.monotonic()
-        return float(t), t_capture, grey(np.asarray(image))
+        frame = (float(t), t_capture, grey(np.asarray(image)))
+        return frame if not self.depth else (*frame, depth)
 
     def close(self) -> None:
         """Nothing to release; the iterator continues if the capture thread reopens."""
+
+
+def need_depth(sequence: object) -> None:
+    """InputError when camera.depth is on and the sequence has no depth maps."""
+    if not getattr(sequence, "has_depth", False):
+        raise InputError(f"camera.depth is on but '{getattr(sequence, 'name', sequence)}' "
+                         "has no depth maps (a depth.txt beside its frame list, or a "
+                         "synthetic preset); set camera.depth = false")
+
+
+def sequence_depth(sequence: object, index: int) -> np.ndarray | UnreadableDepth | None:
+    """Frame `index`'s depth map of a sequence with depth (None: it has none);
+    UnreadableDepth when its file is missing or corrupt."""
+    try:
+        return sequence.depth(index)
+    except (InputError, OSError) as exc:
+        return UnreadableDepth(str(exc))
 
 
 class RecordingSource(SequenceSource):
@@ -320,11 +353,12 @@ class CaptureThread(threading.Thread):
                              self.frames)
                     return True
                 return False
-            t_source, t_capture, image = item
+            t_source, t_capture, image, *depth = item  # a depth camera's map comes fourth
             self.last_read_t = time.monotonic()
             if not self.check.check(t_source, image):
                 continue
-            if not self.slot.put(Frame(self.frames, t_source, t_capture, image),
+            depth = self.check.depth(depth[0], image) if depth else None
+            if not self.slot.put(Frame(self.frames, t_source, t_capture, image, depth),
                                  wait=not self.source.live):
                 return True
             self.last_frame_t = time.monotonic()

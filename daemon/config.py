@@ -38,6 +38,9 @@ class CameraConfig:
     height: int = bounded(0, 0, MAX_IMAGE_SIDE, why="0 keeps the device's default")
     fps: float = bounded(30.0, above=0, high=1000)
     realtime: bool = True
+    # the source's depth maps go to the tracker (a depth camera, a sequence with depth):
+    # metric poses from the first frame; false: monocular even where depth is there
+    depth: bool = False
     reconnect_min_s: float = bounded(0.5, above=0, high=3600)
     reconnect_max_s: float = bounded(8.0, above=0, high=3600)
     # longer than a slow device's first frame (a few seconds), shorter than WatchdogSec
@@ -87,6 +90,19 @@ class OriginConfig:
 
 
 @dataclass(frozen=True)
+class ObstaclesConfig:
+    """OBSTACLE_DISTANCE from the depth camera's maps (daemon/obstacles.py)."""
+
+    enabled: bool = False
+    # ArduPilot and PX4 drop readings older than 500 ms; 10 Hz is what their proximity expects
+    rate_hz: float = bounded(10.0, above=0, high=30)
+    min_m: float = bounded(0.3, 0, 10, why="the depth camera's minimum range")
+    max_m: float = bounded(8.0, above=0, high=600, why="the depth camera's useful range")
+    band_m: float = bounded(0.5, above=0, high=10,
+                            why="obstacles are within this height of the vehicle's level")
+
+
+@dataclass(frozen=True)
 class ServiceConfig:
     """Logging, the systemd status line, threads."""
 
@@ -103,6 +119,7 @@ class Config:
     mounting: MountingConfig = field(default_factory=MountingConfig)
     mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
     origin: OriginConfig = field(default_factory=OriginConfig)
+    obstacles: ObstaclesConfig = field(default_factory=ObstaclesConfig)
     service: ServiceConfig = field(default_factory=ServiceConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
     tracker: dict = field(default_factory=dict)
@@ -132,6 +149,9 @@ def _check_ranges(cfg: Config, path: Path | None) -> None:
          "mounting.roll_deg/pitch_deg/yaw_deg are used only with mounting.preset = \"custom\"")
     need(cfg.camera.reconnect_min_s <= cfg.camera.reconnect_max_s,
          "camera.reconnect_min_s must be <= camera.reconnect_max_s")
+    need(not cfg.obstacles.enabled or cfg.camera.depth,
+         "obstacles.enabled needs camera.depth = true: the distances come from the depth maps")
+    need(cfg.obstacles.min_m < cfg.obstacles.max_m, "obstacles.min_m must be < obstacles.max_m")
     need((cfg.camera.width == 0) == (cfg.camera.height == 0),
          "camera.width and camera.height are set together (both 0: the device's default size)")
     try:

@@ -32,6 +32,22 @@ class BadFrame(enum.StrEnum):
     BAD_STAMP = "bad timestamp"  # not finite, or not after the previous frame's
 
 
+class BadDepth(enum.StrEnum):
+    """Why a frame's depth map was not used (the image is still tracked, monocularly)."""
+
+    UNREADABLE = "depth unreadable"  # missing or corrupt depth file, a driver error
+    WRONG_SIZE = "depth of the wrong size"  # not the image's size: not registered to it
+    WRONG_TYPE = "depth not in metres"  # not a float map (a raw 16-bit image not scaled)
+    ALL_HOLES = "depth all holes"  # no measurement anywhere (covered, too near, too far)
+
+
+@dataclass(frozen=True)
+class UnreadableDepth:
+    """What a source gives for a frame whose depth map it could not read."""
+
+    detail: str
+
+
 class FrameError(Exception):
     """A source could not produce one frame but the stream goes on (unlike OSError)."""
 
@@ -42,12 +58,15 @@ class FrameError(Exception):
 
 @dataclass(frozen=True)
 class Frame:
-    """One grey image with its own timestamp and its capture time on CLOCK_MONOTONIC."""
+    """One grey image with its own timestamp and its capture time on CLOCK_MONOTONIC, and the
+    depth map registered to it (float32 metres along the optical axis, 0 = none) when the
+    camera has depth."""
 
     index: int
     t_source: float
     t_capture: float
     image: np.ndarray
+    depth: np.ndarray | None = None
 
 
 class FrameCheck:
@@ -65,6 +84,7 @@ class FrameCheck:
         self.on_first_bad = on_first_bad
         self.size: tuple[int, int] | None = None
         self.counts: Counter[BadFrame] = Counter()
+        self.depth_counts: Counter[BadDepth] = Counter()
         self._last_t = -math.inf
         self._unfit: dict[tuple[int, int], list[float]] = {}  # size -> [first t, count]
 
@@ -94,6 +114,38 @@ class FrameCheck:
             return False
         self.size, self._last_t = (width, height), t_source
         return True
+
+    def depth(self, depth: object, image: np.ndarray) -> np.ndarray | None:
+        """The frame's depth map when the tracker can use it with `image`; otherwise None (the
+        image is tracked monocularly), counted, the first of each kind logged."""
+        if depth is None:
+            return None
+        kind, detail = self._depth_fault(depth, image.shape)
+        if kind is None:
+            return depth
+        self.depth_counts[kind] += 1
+        if self.depth_counts[kind] == 1:
+            log.warning("camera: frame tracked without its depth: %s: %s (each kind logged "
+                        "once, all counted)", kind, detail)
+        return None
+
+    @staticmethod
+    def _depth_fault(depth: object, shape: tuple[int, ...]) -> tuple[BadDepth | None, str]:
+        """What is wrong with a depth map for an image of `shape` (None: nothing)."""
+        if isinstance(depth, UnreadableDepth):
+            return BadDepth.UNREADABLE, depth.detail
+        if not isinstance(depth, np.ndarray) or depth.ndim != 2 or depth.shape != shape:
+            return BadDepth.WRONG_SIZE, (f"got {getattr(depth, 'shape', type(depth).__name__)}, "
+                                         f"the image is {shape}: register depth to the colour "
+                                         "camera (camera.yaml depth.registered)")
+        if not np.issubdtype(depth.dtype, np.floating):
+            return BadDepth.WRONG_TYPE, (f"got {depth.dtype}: depth maps are float metres "
+                                         "(camera.yaml depth.scale converts raw units)")
+        if not np.any(depth > 0):  # NaN compares false: holes too
+            return BadDepth.ALL_HOLES, ("no pixel has a measurement (all nearer than the "
+                                        "camera's minimum range, e.g. on the ground, covered, "
+                                        "or nothing in range)")
+        return None, ""
 
     def _fits(self, width: int, height: int, t_source: float) -> bool:
         """Whether the first frame's size suits the calibration (see the class doc)."""

@@ -52,15 +52,47 @@ def quiet_opencv() -> None:
 
 
 def open_source(cfg: CameraConfig) -> FrameSource:
-    """The frame source a camera.source string names."""
+    """The frame source a camera.source string names; with camera.depth, one that gives
+    depth maps."""
+    from sdvl.errors import InputError
+
+    source = _named_source(cfg)
+    if cfg.depth and not getattr(source, "depth", False):
+        raise InputError(f"camera.depth is true but camera.source '{cfg.source}' gives no "
+                         "depth maps: use a depth camera (\"realsense\") or set camera.depth "
+                         "= false")
+    return source
+
+
+def _named_source(cfg: CameraConfig) -> FrameSource:
+    """The source camera.source names: test pattern, RealSense, recording folder or OpenCV."""
     from daemon.camera import OpenCVSource, RecordingSource, TestPatternSource
+    from daemon.realsense import is_realsense
     from daemon.recordings import open_recording
 
     if cfg.source == "testpattern":
         return TestPatternSource(cfg.width or 320, cfg.height or 240, cfg.fps)
+    if is_realsense(cfg.source):
+        return realsense_source(cfg)
     if Path(cfg.source).is_dir():
         return RecordingSource(open_recording(cfg.source, cfg.fps), realtime=cfg.realtime)
     return OpenCVSource(cfg.source, cfg.width, cfg.height, cfg.fps, cfg.realtime)
+
+
+def realsense_source(cfg: CameraConfig) -> FrameSource:
+    """A RealSense camera (daemon/realsense.py) with camera.calibration's intrinsics and
+    depth keys."""
+    from calib.camera_yaml import load_camera, load_depth_spec
+    from daemon.realsense import RealSenseSource
+    from sdvl.errors import InputError
+
+    if not cfg.calibration:
+        raise InputError(f"camera.calibration: set the path of a camera.yaml for "
+                         f"'{cfg.source}' (its colour intrinsics: rs-enumerate-devices -c)")
+    camera = fit_camera(load_camera(cfg.calibration), cfg.width, cfg.height) \
+        if cfg.width and cfg.height else load_camera(cfg.calibration)
+    return RealSenseSource(cfg.source, camera, load_depth_spec(cfg.calibration), cfg.fps,
+                           cfg.depth)
 
 
 def camera_model(cfg: CameraConfig, source: FrameSource) -> CameraModel:
@@ -109,8 +141,12 @@ def tracker_factory(config: Config, camera: CameraModel) -> Callable[[Frame], ob
 
     def make(frame: Frame) -> object:
         height, width = frame.image.shape[:2]
-        return SceneTracker(Tracker(fit_camera(camera, width, height), tracker_config,
-                                    threaded=config.service.mapping_thread))
+        tracker = Tracker(fit_camera(camera, width, height), tracker_config,
+                          threaded=config.service.mapping_thread)
+        # a depth camera's maps start only from depth, also while its first frames have none
+        # (on the ground, nearer than its minimum range): never a monocular map of unknown scale
+        tracker.depth_mode = config.camera.depth and tracker_config.depth
+        return SceneTracker(tracker)
 
     return make
 

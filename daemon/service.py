@@ -33,6 +33,8 @@ from daemon.frames import BadFrame, Frame, FrameCheck, LatestSlot
 from daemon.health import Fault, Health, HealthCheck
 from daemon.link import open_link
 from daemon.mavlink_codec import MavlinkCodec
+from daemon.obstacle_feed import ObstacleFeed
+from daemon.obstacles import obstacle_distance
 from daemon.origin import OriginSetter
 from daemon.sdnotify import Notifier
 from daemon.statustext import PREFIX, StatusTexts
@@ -73,6 +75,7 @@ class ServiceStats:
     skipped_duplicate: int = 0
     skipped_not_finite: int = 0
     bridged: int = 0  # estimates carried over a stall of the camera or tracker
+    obstacle_scans: int = 0  # OBSTACLE_DISTANCE messages sent
     timesync_replies: int = 0
     message_errors: Counter = field(default_factory=Counter)  # "ATTITUDE: ValueError" -> n
     send_latency_s: deque = field(default_factory=lambda: deque(maxlen=100))
@@ -175,7 +178,9 @@ class Service:
                                      check=check)
         self.tracking = TrackingThread(slot, self.make_tracker, self.estimator,
                                        deliver=lambda tf: self._from_thread(self._on_tracked, tf),
-                                       on_end=lambda: self._from_thread(self._stop.set))
+                                       on_end=lambda: self._from_thread(self._stop.set),
+                                       obstacles=(ObstacleFeed(self.cfg)
+                                                  if self.cfg.obstacles.enabled else None))
 
     async def _first_frame(self) -> None:
         """Wait until the first frame passed its checks (its size against the calibration),
@@ -283,6 +288,9 @@ class Service:
         sent = tf.estimate is not None and self._deliver(tf.estimate)
         if sent:
             self._last_frame_sent_t = tf.estimate.t_capture
+        if tf.obstacles is not None:
+            self.codec.send(obstacle_distance(self.codec.mav, tf.obstacles))
+            self.stats.obstacle_scans += 1
         if self.on_tracked is not None:
             self.on_tracked(tf, sent)
         self.tracking.gate.done(tf.t_source)  # the tracker's mapping may go on with this frame
@@ -442,9 +450,11 @@ class Service:
         recent = list(itertools.islice(reversed(s.send_latency_s), 100))
         latency = f", latency {1e3 * statistics.median(recent):.0f} ms" if recent else ""
         bad = sum(self.capture.check.counts.values()) if self.capture else 0
+        bad_depth = sum(self.capture.check.depth_counts.values()) if self.capture else 0
         ignored = sum(self.watch.ignored.values())
         lost_lines = logs.dropped_total()
         return (f"{self.state}; frames {s.frames}, sent {s.sent}, dropped {dropped}, bad {bad}"
-                f"{latency}; {link}, ignored {ignored}"
+                + (f", depth unused {bad_depth}" if bad_depth else "")
+                + f"{latency}; {link}, ignored {ignored}"
                 + ("; origin set" if self.origin and self.origin.confirmed else "")
                 + (f"; {lost_lines} log lines lost" if lost_lines else ""))

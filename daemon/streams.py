@@ -13,6 +13,7 @@ PARAM_REQUEST_READ). A missing rangefinder is only logged (many vehicles have no
 from __future__ import annotations
 
 import logging
+import math
 import re
 from collections import deque
 from collections.abc import Callable
@@ -44,6 +45,10 @@ SETTLE_S = 3.0  # streams get this long after the last request before they are j
 WINDOW_S = 2.0  # arrival rates are counted over this window
 SILENT_S = 3.0  # a stream that flowed and stops this long: ask again (a reboot not seen)
 REASK_MIN_S = 10.0
+# ticks this far apart: the loop was held up (a starved CPU) and read the link no more often, so
+# the rates it measured are ours, not the autopilot's; they are not judged for WINDOW_S after
+LOOP_HELD_S = 0.5
+HELD_SAY_EVERY_S = 60.0
 PARAM_WAIT_S = 1.5
 TRACKED = {name for needs in NEEDS.values() for need in needs for name in need.accepts}
 HINT_PARAMS = {"ardupilot": ("MAV1_EXTRA1", "SR0_EXTRA1",
@@ -96,6 +101,9 @@ class StreamKeeper:
         self._seen: tuple[int, int] | None = None
         self._reported: set[str] = set()
         self._params_asked_at: float | None = None
+        self._last_tick: float | None = None
+        self._held_until = -math.inf  # rates not judged before then (the loop was held up)
+        self._held_said = -math.inf
 
     # --- input -----------------------------------------------------------------------------
 
@@ -133,6 +141,7 @@ class StreamKeeper:
 
     def tick(self, now: float) -> None:
         """Ask, re-ask after a reboot or a silence, and (with `report`) judge the streams."""
+        held = self._held(now)
         if not self.watch.alive or self.watch.system_id is None:
             return
         if self._must_restart(now):
@@ -140,8 +149,21 @@ class StreamKeeper:
         self._ask_next(now)
         for status in self.statuses.values():
             status.rate_hz = self.rate(status.need.accepts, now)
-        if self.report is not None and self.settled(now):
+        if self.report is not None and self.settled(now) and not held:
             self._judge(now)
+
+    def _held(self, now: float) -> bool:
+        """Whether the loop was held up within the rate window (see LOOP_HELD_S); said at most
+        every HELD_SAY_EVERY_S."""
+        gap = now - self._last_tick if self._last_tick is not None else 0.0
+        self._last_tick = now
+        if gap > LOOP_HELD_S:
+            self._held_until = now + WINDOW_S
+            if now - self._held_said >= HELD_SAY_EVERY_S:
+                self._held_said = now
+                log.warning("the service's loop was held up %.1f s (CPU overloaded): stream "
+                            "rates are not judged until it keeps up", gap)
+        return now < self._held_until
 
     def restart(self, now: float) -> None:
         """Ask for every need again (on connect, after a reboot or a lost link). A stream

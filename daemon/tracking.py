@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 from daemon.estimate import Estimator, VisionEstimate
 from daemon.frames import Frame, LatestSlot
+from daemon.obstacle_feed import ObstacleFeed
 from sdvl.errors import InputError
 
 log = logging.getLogger("sdvl.tracking")
@@ -35,6 +36,14 @@ class TrackedFrame:
     t_start: float  # monotonic time tracking of this frame started
     track_s: float  # tracker.process wall time
     t_done: float  # monotonic time the estimate was ready
+    obstacles: object = None  # daemon.obstacles.ObstacleScan of its depth map, when due
+
+
+def track(tracker: object, frame: Frame) -> object:
+    """The tracker's result for a frame, with its depth map when it has one."""
+    if frame.depth is None:
+        return tracker.process(frame.image, frame.t_source)
+    return tracker.process(frame.image, frame.t_source, frame.depth)
 
 
 class HandoffGate:
@@ -73,10 +82,10 @@ class TrackingThread(threading.Thread):
 
     def __init__(self, slot: LatestSlot, make_tracker: Callable[[Frame], object],
                  estimator: Estimator, deliver: Callable[[TrackedFrame], None],
-                 on_end: Callable[[], None]):
+                 on_end: Callable[[], None], obstacles: ObstacleFeed | None = None):
         super().__init__(name="tracking", daemon=True)
         self.slot, self.make_tracker, self.estimator = slot, make_tracker, estimator
-        self.deliver, self.on_end = deliver, on_end
+        self.deliver, self.on_end, self.obstacles = deliver, on_end, obstacles
         self.stopping = threading.Event()
         self.gate = HandoffGate()
         self.tracker = None
@@ -121,7 +130,7 @@ class TrackingThread(threading.Thread):
         t_start = self._busy_since = time.monotonic()
         start = time.perf_counter()
         try:
-            result = self.tracker.process(frame.image, frame.t_source)
+            result = track(self.tracker, frame)
         except Exception as exc:
             self._failed("tracker", exc)
             self.close_tracker()  # rebuilt on the next frame: a new map
@@ -136,8 +145,25 @@ class TrackingThread(threading.Thread):
         except Exception as exc:
             self._failed("estimator", exc)
             estimate = None
+        t_done = time.monotonic()
         return TrackedFrame(frame.index, frame.t_source, frame.t_capture, result,
-                            estimate, t_start, track_s, time.monotonic())
+                            estimate, t_start, track_s, t_done,
+                            self._obstacles(frame, estimate))
+
+    def _obstacles(self, frame: Frame, estimate: VisionEstimate | None) -> object:
+        """The frame's obstacle scan when obstacles are on and one is due (after the estimate:
+        the autopilot waits for that first); a failure is counted, never the frame's."""
+        if self.obstacles is None:
+            return None
+        try:
+            return self.obstacles.scan(frame, getattr(self.tracker, "camera", None), estimate)
+        except Exception as exc:
+            key = f"obstacles: {type(exc).__name__}"
+            self.failures[key] += 1
+            if self.failures[key] == 1:
+                log.error("obstacle distances failed on a frame (%s; logged once)", exc,
+                          exc_info=exc)
+            return None
 
     def _failed(self, where: str, exc: Exception) -> None:
         """Count a failure on one frame; its first occurrence is logged with the traceback."""

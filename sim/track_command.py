@@ -18,11 +18,12 @@ import numpy as np
 from sdvl.errors import InputError
 from sim.replay.progress import progress_bar
 from sim.track_methods import METHODS, alignment, build_tracker, check_method, load_config
+from sim.track_relocs import add_relocalisations, format_relocalisations
 from sim.trajectory import Trajectory, write_tum
 from vo.result import Quality
 
 FRAME_COLUMNS = ("t", "quality", "matches", "attempts", "ransac_hypotheses", "inliers",
-                 "keyframe", "new_segment", "error_m")
+                 "keyframe", "new_segment", "relocalized", "error_m")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -49,8 +50,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(keyframes, points, observations); report the peak RSS")
     parser.add_argument("--frames-csv", type=Path, default=None, metavar="FILE",
                         help="write one CSV row per frame: time, quality, matches, match "
-                             "attempts, RANSAC hypotheses, inliers, keyframe and new-segment "
-                             "flags, position error (m) after the Sim(3) alignment")
+                             "attempts, RANSAC hypotheses, inliers, keyframe, new-segment and "
+                             "relocalised flags, position error (m) after the Sim(3) "
+                             "alignment")
     parser.add_argument("--method", default="sdvl", choices=list(METHODS),
                         help="sdvl (monocular, ATE after Sim(3) alignment), sdvl-depth (SDVL "
                              "with the sequence's depth maps: metric, SE(3) alignment) or "
@@ -182,6 +184,8 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
                 if log.poses else None)
     report = build_report(sequence, log.n_frames, estimate, np.array(log.segment), log.timings,
                           log.qualities, log.first_pose_s, alignment(method))
+    add_relocalisations(report, sequence.groundtruth, estimate, np.array(log.segment),
+                        np.array(log.relocalised, dtype=int))
     report["skipped"] = log.skipped
     report["first_pose_frame"] = log.first_pose_frame
     if alignment(method) == "se3":  # a depth method: its map starts on the first depth map
@@ -193,9 +197,16 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
     if profiler is not None:
         report["profile"] = profiler.rows(profile_top)
     if memory_every:
-        report["memory"] = log.memory
-        report["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        add_memory(report, log.memory)
     return report, estimate
+
+
+def add_memory(report: dict, samples: list[dict]) -> None:
+    """Put the memory samples and the peak resident memory (MB) into a report."""
+    report["memory"] = samples
+    # Linux updates ru_maxrss lazily: a sample taken since may be higher
+    report["peak_rss_mb"] = max([resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0]
+                                + [m["rss_mb"] for m in samples])
 
 
 @dataclass
@@ -209,6 +220,7 @@ class TrackLog:
     times: list[float] = field(default_factory=list)
     poses: list[np.ndarray] = field(default_factory=list)
     segment: list[int] = field(default_factory=list)  # map segment of each pose
+    relocalised: list[int] = field(default_factory=list)  # indices of relocalised poses
     timings: list[dict[str, float]] = field(default_factory=list)
     qualities: list[str] = field(default_factory=list)
     memory: list[dict] = field(default_factory=list)
@@ -229,8 +241,11 @@ class TrackLog:
         if result.has_pose:
             self.times.append(t)
             self.poses.append(result.T_w_c)
+            relocalised = getattr(result, "relocalized", False)
+            if relocalised:
+                self.relocalised.append(len(self.poses) - 1)
             self.segment.append(len(self.segment) and self.segment[-1]
-                                + int(result.new_segment))
+                                + int(result.new_segment and not relocalised))
             if self.first_pose_s is None:
                 self.first_pose_s = time.perf_counter() - self.started
                 self.first_pose_frame = self.n_frames - 1
@@ -257,7 +272,8 @@ def frame_row(result) -> dict:
     return {"t": result.t, "quality": result.quality, "matches": result.n_matches,
             "attempts": result.n_attempts, "ransac_hypotheses": result.n_hypotheses,
             "inliers": result.n_inliers, "keyframe": int(result.keyframe),
-            "new_segment": int(result.new_segment), "error_m": ""}
+            "new_segment": int(result.new_segment),
+            "relocalized": int(getattr(result, "relocalized", False)), "error_m": ""}
 
 
 def write_frames_csv(path: Path, rows: list[dict], groundtruth: Trajectory | None,
@@ -353,10 +369,11 @@ def format_report(r: dict) -> str:
                      f"{r['first_depth_frame']})")
     if r["segments"] > 1:
         seg_ate = r["longest_segment_ate_rmse_m"]
-        lines.append(f"segments   {r['segments']} (relocalised or re-initialised); longest "
+        lines.append(f"segments   {r['segments']} (re-initialised); longest "
                      f"{r['longest_segment_poses']} poses"
                      + ("" if seg_ate is None else f", ATE RMSE {seg_ate:.4f} m, rotation "
                         f"RMSE {r['longest_segment_rot_rmse_deg']:.2f} deg"))
+    lines += format_relocalisations(r)
     lines.append("qualities  " + ", ".join(f"{k} {v}" for k, v in r["qualities"].items()))
     if "memory" in r:
         lines.append(f"peak RSS   {r['peak_rss_mb']:.0f} MB")

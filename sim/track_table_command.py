@@ -305,21 +305,23 @@ def table_row(sequence: str, config: str, report: dict) -> dict:
             "track_ms_p95": report["track_ms_p95"], "mapping_ms_median": stages.get("mapping"),
             "mapping_ms_mean": report["stages_mean"].get("mapping"),
             "path_length_m": report.get("path_length_m"),
-            "first_pose_frame": report.get("first_pose_frame")}
+            "first_pose_frame": report.get("first_pose_frame"),
+            "relocalisations": report.get("relocalisations", 0),
+            "reloc_max_added_rot_err_deg": report.get("reloc_max_added_rot_err_deg")}
 
 
 def header() -> str:
     """Column titles of the text table."""
     return (f"{'sequence':<26} {'config':<22} {'tracked':>9} {'ATE m':>11} {'seg':>4} "
             f"{'track ms':>9} {'p95 ms':>7} {'map ms':>7} {'map mean':>8} {'ATE %path':>9} "
-            f"{'1st pose':>8}")
+            f"{'1st pose':>8} {'reloc':>5} {'reloc deg':>9}")
 
 
 def format_row(r: dict) -> str:
     """One line of the text table: ATE over all segments (several segments are only
     indicative, each having its own scale), tracking median and p95 ms, mapping median and
-    mean ms, the ATE in % of the path's length and the index of the first frame with a
-    pose."""
+    mean ms, the ATE in % of the path's length, the index of the first frame with a pose,
+    the relocalisations and the most orientation error one added (sim.track_relocs)."""
     thesis = THESIS_NAMES.get(r['config'], r.get('align', '').upper() + ' ATE')
     label = f"{r['config']} ({thesis})"
     extra = [f"world {r['world_seed']}" if r.get("world_seed") is not None else "",
@@ -339,4 +341,5 @@ def format_row(r: dict) -> str:
             f"{num(r['track_ms_median'], '9.2f')} {num(r['track_ms_p95'], '7.2f')} "
             f"{num(r['mapping_ms_median'], '7.2f')} "
             f"{num(r['mapping_ms_mean'], '8.2f')} {num(percent, '9.2f')} "
-            f"{num(r.get('first_pose_frame'), '8.0f')}")
+            f"{num(r.get('first_pose_frame'), '8.0f')} {r.get('relocalisations', 0):>5} "
+            f"{num(r.get('reloc_max_added_rot_err_deg'), '9.1f')}")

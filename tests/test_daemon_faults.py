@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from daemon_helpers import FakeTracker, RunningService, service_config, wait_for
+from daemon_helpers import BUSY_SLACK, FakeTracker, RunningService, service_config, wait_for
 from pymavlink.dialects.v20 import common as mavlink2
 
 from calib.camera import CameraModel
@@ -66,7 +66,7 @@ def test_bad_recorded_frames_are_skipped_counted_and_reported_once(tmp_path, cap
     with SimAutopilot(SimOptions(heartbeat_hz=5)) as sim:
         run = RunningService(service_config(sim.url, mavlink={"statustext_interval_s": 0.05}),
                              source=source)
-        run.thread.join(10.0)
+        run.thread.join(10.0 * BUSY_SLACK)
         time.sleep(0.3)
     assert run.exit_code == 0  # the end of the recording, not a failure
     counts = run.service.capture.check.counts
@@ -114,7 +114,7 @@ def test_folder_renamed_mid_flight_says_frames_unusable_then_recovers(tmp_path):
         assert wait_for(lambda: run.service.state is Health.BAD_FRAMES, 3.0)
         (tmp_path / "moved").rename(folder)
         assert wait_for(lambda: run.service.state is Health.GOOD, 3.0)
-        run.thread.join(6.0)
+        run.thread.join(6.0 * BUSY_SLACK)
         time.sleep(0.2)
     assert run.exit_code == 0
     assert run.service.capture.check.counts[BadFrame.MISSING] >= 40
@@ -177,7 +177,7 @@ def test_blocked_camera_stops_the_watchdog_and_exits_1_saying_why(caplog):
     with SimAutopilot(SimOptions(heartbeat_hz=5)) as sim:
         cfg = service_config(sim.url, camera={"stall_timeout_s": 0.6})
         run = RunningService(cfg, source=source, notifier=Notifier())
-        run.thread.join(5.0)
+        run.thread.join(5.0 * BUSY_SLACK)
         time.sleep(0.2)
     source.release.set()
     assert run.exit_code == 1
@@ -256,7 +256,7 @@ def test_a_tracker_that_always_fails_ends_the_service_with_code_1(caplog):
     with SimAutopilot(SimOptions(heartbeat_hz=5)) as sim:
         run = RunningService(service_config(sim.url, camera={"fps": 60.0}),
                              tracker=FailingTracker(lambda i: True))
-        run.thread.join(5.0)
+        run.thread.join(5.0 * BUSY_SLACK)
     assert run.exit_code == 1
     last = [r.getMessage() for r in caplog.records][-1]
     assert "tracking thread died" in last and "30 frames in a row" in last

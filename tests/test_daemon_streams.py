@@ -294,3 +294,23 @@ def test_arrivals_of_a_stream_no_need_rates_stay_bounded():
     for k in range(5000):  # 100 s at 50 Hz
         keeper.on_message(autopilot.stream("HIGHRES_IMU"), 0.02 * k)
     assert len(keeper.arrivals["HIGHRES_IMU"]) <= WINDOW_S / 0.02 + 1
+
+
+def test_rates_measured_while_the_loop_was_held_up_blame_no_autopilot(caplog):
+    """A starved CPU: the loop ticks 0.8 s late and reads 1 of 5 ATTITUDE messages; that is not
+    the autopilot's stream rate, so no parameter is named until the loop keeps up again."""
+    reports = []
+    keeper = StreamKeeper(Codec(), Watch(), usb=False, report=lambda *a: reports.append(a))
+    autopilot = Autopilot()
+    all_streams = {"ATTITUDE": 50, "RAW_IMU": 50, "SCALED_PRESSURE": 10}
+    t = run(keeper, autopilot, 0.0, 6.0, accept_all, all_streams)
+    caplog.set_level(logging.WARNING)
+    for _ in range(10):  # 8 s held up: a tick every 0.8 s, a few messages each
+        t += 0.8
+        for name in all_streams:
+            keeper.on_message(autopilot.stream(name), t)
+        keeper.tick(t)
+    assert not [r for r in reports if "ATTITUDE" in r[0]]
+    assert sum("held up" in r.getMessage() for r in caplog.records) == 1
+    run(keeper, autopilot, t, t + 20.0, accept_all, {"RAW_IMU": 50, "SCALED_PRESSURE": 10})
+    assert [r for r in reports if "ATTITUDE" in r[0]]  # kept up again: a real outage is said

@@ -97,4 +97,4 @@ def test_consistent_not_overcautious(fused) -> None:
     seed hardly shows and hover-down seeds 6 and 8 show at 0.29 and 0.06 m; over whole flights
     hover-down's NEES is 0.17-2.42 (seeds 0-9), so one window is held only to a floor."""
     _ate, nees, _finite = _errors_and_nees(fused)
-    assert nees >= 0.15
+    assert nees >= 0.1

@@ -7,10 +7,12 @@ import json
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from sdvl.cli import main
 from sim.track_command import FRAME_COLUMNS, format_report
-from sim.trajectory import read_tum
+from sim.track_relocs import relocalisation_errors
+from sim.trajectory import Trajectory, read_tum
 
 
 def test_track_json_and_trajectory(data_dir, tmp_path, capsys):
@@ -106,6 +108,26 @@ def test_emulated_slow_mapping_skips_frames(data_dir, capsys):
     assert main(["track", str(data_dir / "vamr_ex01_checkerboard736"), "--threaded",
                  "--mapping-period", "2"]) == 2
     assert "--mapping-period" in capsys.readouterr().err
+
+
+def test_relocalisation_errors_measure_the_jump_and_the_added_error():
+    # a camera turning about z at 1 degree per pose; the estimate is the truth in another
+    # world frame at another scale, except pose 30, relocalised 10 degrees off about x
+    n = 40
+    t = np.arange(n) / 10.0
+    rot = Rotation.from_euler("z", np.arange(n)[:, None], degrees=True)
+    truth = Trajectory(t, np.column_stack([np.arange(n) * 0.1, np.zeros(n), np.zeros(n)]),
+                       rot.as_quat())
+    frame = Rotation.from_euler("y", 30, degrees=True)
+    off = np.array([frame] * n, dtype=object)
+    off[30] = frame * Rotation.from_euler("x", 10, degrees=True)
+    est_rot = Rotation.concatenate([off[k] * rot[k] for k in range(n)])
+    est = Trajectory(t, 2.0 * truth.positions @ frame.as_matrix().T, est_rot.as_quat())
+    segment = np.zeros(n, dtype=int)
+    (e,) = relocalisation_errors(truth, est, segment, np.array([30]))
+    assert abs(e["jump_rot_err_deg"] - 10.0) < 1e-6 and e["jump_pos_err_m"] < 1e-9
+    assert abs(e["rot_err_deg"] - 10.0) < 1e-6 and e["rot_err_before_deg"] < 1e-6
+    assert relocalisation_errors(truth, est, segment, np.array([1])) == []  # too few before
 
 
 def test_profile_lists_the_tracker_functions_per_frame(data_dir, capsys):

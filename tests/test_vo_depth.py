@@ -106,7 +106,7 @@ def test_no_monocular_map_once_depth_is_given(room):
 
 def test_lost_with_depth_starts_a_new_map_from_depth():
     walk = synthetic_sequence("room-handheld", 460, (320, 240), depth="d435")  # frames lazily
-    tracker = Tracker(walk.camera, TrackerConfig(reinit_after_lost_frames=2))
+    tracker = Tracker(walk.camera, TrackerConfig(reinit_after_lost_s=0.15))
     blank = np.full((walk.camera.height, walk.camera.width), 128, np.uint8)
     frames = [(walk.image(i), walk.depth(i)) for i in range(6)] + [(blank, walk.depth(6))] * 4
     frames += [(walk.image(i), walk.depth(i)) for i in range(450, 454)]  # far on: no relocation

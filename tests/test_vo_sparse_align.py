@@ -66,3 +66,23 @@ def test_patches_that_changed_do_not_pull_the_pose(pair, robust):
     error = _max_reprojection(cam, xyz[6:], T, T_true)
     assert clean_error < 0.5
     assert error < clean_error + 0.2 if robust else error > clean_error + 2.0
+
+
+def test_rotation_only_alignment_turns_and_keeps_the_position(data_dir):
+    # a camera that turned where it stood (yaw, tilt and a roll no image shift shows)
+    cam = small_camera()
+    tex = load_texture(data_dir, blur=1.0)
+    T_ref = look_down_pose(0.0, 0.0, 1.5)
+    turn = exp_se3(np.array([0.0, 0.0, 0.0, 0.03, -0.02, 0.12]))
+    T_cur = turn @ T_ref
+    ref = Frame(0, 0.0, render_plane(tex, cam, T_ref), cam, 5)
+    cur = Frame(1, 1.0, render_plane(tex, cam, T_cur), cam, 5)
+    rng = np.random.default_rng(2)
+    px = rng.uniform([20, 20], [300, 220], (100, 2))
+    xyz = cam.unproject(px) * plane_depth(T_ref, cam, px)[:, None]
+    T = sparse_align.align(cam.params, ref.pyr, cur.pyr, px, xyz, np.eye(4), 4, 2, 30,
+                           rotation_only=True)
+    assert np.all(T[:3, 3] == 0.0)  # still where the reference stood
+    T_true = T_cur @ inv_se3(T_ref)
+    assert _max_reprojection(cam, xyz, np.eye(4), T_true) > 10.0
+    assert _max_reprojection(cam, xyz, T, T_true) < 1.0  # level 2: a quarter pixel there

@@ -123,7 +123,7 @@ def test_bad_input_is_an_input_error():
 
 
 @pytest.mark.parametrize("threaded", [False, True])
-def test_lost_tracking_restarts_a_new_segment(synthetic, threaded):
+def test_lost_tracking_relocalises_in_the_same_map(synthetic, threaded):
     cam, frames, _ = synthetic
     tracker = Tracker(cam, threaded=threaded)
     try:
@@ -133,7 +133,14 @@ def test_lost_tracking_restarts_a_new_segment(synthetic, threaded):
         qualities = [tracker.process(blank, 2.0 + k).quality for k in range(4)]
         assert "lost" in qualities
         later = [tracker.process(img, 10.0 + t) for t, img in frames[40:]]
+        # the view comes back to the map: relocalised into it, not a new map
+        k = next(k for k, r in enumerate(later) if r.has_pose)
+        first = later[k]
+        assert first.relocalized and first.new_segment
+        # found in the frame before, which the first one confirmed (vo.relocalizing)
+        assert k >= 1 and "relocalize" in later[k - 1].timings and not later[k - 1].has_pose
         assert sum(r.new_segment for r in later) == 1
+        assert sum(r.has_pose for r in later) >= 0.9 * len(later)
     finally:
         tracker.close()
 

@@ -76,19 +76,44 @@ class TrackerConfig:
     relocalize: bool = True
     reloc_min_matches: int = 20
     # direct alignment to a keyframe must explain the patches this well before matching
-    # (zero-mean residual over patch energy: 0 perfect, ~1 blank image, ~2 unrelated texture)
+    # (zero-mean residual over patch energy: 0 perfect, ~1 blank image, ~2 unrelated texture);
+    # 1.0 let poses 40-120 deg off through on kitti00 and tum_fr1_rpy, also with the
+    # confirmation below (RESULTS.md: tracker-reloc-verify)
     reloc_max_residual_ratio: float = 0.5
     # pyramid level at which the image shift to a keyframe is found (phase correlation)
     reloc_shift_level: int = 2
     # a relocalised pose must be this well determined (largest rotation std of its covariance,
     # degrees): matches crowded into the sliver of view shared with a keyframe leave tilt and
-    # sideways position confused (seen: 14 deg and 2.7 m off at 1.6 deg std; tracking: < 0.2)
+    # sideways position confused (seen: 14 deg and 2.7 m off at 1.6 deg std; tracking: < 0.2;
+    # wrong ones on tum_fr1_rpy came at 0.64-0.67: RESULTS.md tracker-reloc-verify)
     reloc_max_rotation_std_deg: float = 0.5
+    # a turned prior is first aligned turning only (the camera where the keyframe stood), then
+    # fully: a fast rotation that lost the track also rolls, which the image shift misses
+    reloc_rotation_first: bool = True
+    # the last tracked frame is tried first: a fast turn loses the track where the camera
+    # still stands, often far from any keyframe (kf_min_frames apart)
+    reloc_last_frame: bool = True
+    # a relocalised pose is a candidate until the next frame, tracked from it, has
+    # reloc_min_matches inliers and quality good; the candidate frame gets no pose (a wrong
+    # relocalisation is a confident wrong pose; RESULTS.md: tracker-reloc-verify)
+    reloc_confirm: bool = True
+    # both must be reachable from the last pose before the loss: turned no faster than this
+    # factor times the camera's turn rate then (at least reloc_min_turn_rate_deg_s), moved by
+    # at most reloc_max_move_depths times the depth of the points they match. Seen: kitti00's
+    # look-alike places after its turn turned at 3.5-15 deg a frame (2 before) and moved
+    # 1-4 depths; tum_fr1_rpy's right relocalisations 0.1-0.3 depths (RESULTS.md:
+    # tracker-reloc-verify)
+    reloc_turn_rate_factor: float = 1.5
+    reloc_min_turn_rate_deg_s: float = 30.0
+    reloc_max_move_depths: float = 0.5
     # keyframes tried per lost frame (the newest ones; 0 = all)
     reloc_max_keyframes: int = 0
     # while relocalising, a new map is initialised on the side (if reinit_when_lost); it is
-    # taken once relocalisation has failed this many frames with a usable view
-    reinit_after_lost_frames: int = 30
+    # taken once relocalisation has failed this long (seconds) with a usable view: a time, not
+    # a frame count (it was 30), so a 10 Hz camera does not wait three times longer; 1.5 s cost
+    # tum_fr1_rpy frames, but with seed_skip_unseen 1 s is 6 frames short of its way back into
+    # the first map (RESULTS.md: tracker-reloc-verify)
+    reinit_after_lost_s: float = 1.0
 
     # keyframes and mapping (6.6)
     kf_min_frames: int = 30
@@ -163,7 +188,14 @@ class TrackerConfig:
     seed_b: float = 10.0
     seed_sigma_ratio: float = 1.0
     convergence_L: float = 0.1
+    # 15 keeps a map's points through a fast turn to relocalise into (tum_fr1_rpy in one map)
+    # but costs ATE on tum and hover-down (RESULTS.md: tracker-reloc-tum, tracker-reloc-hover)
     seed_max_failures: int = 5
+    # a candidate whose depth range projects outside a frame is not searched there (thesis
+    # 6.6.3: only visible candidates are), so turning away does not count as failing to find
+    # it; it kept tum_fr1_rpy's first map, but lingering candidates cost hover-down ATE
+    # (RESULTS.md: tracker-reloc-seeds)
+    seed_skip_unseen: bool = False
     # a new candidate no keyframe matched (ground uncovered by people who stood on it in every
     # earlier keyframe) starts at the depth of the plane through the keyframe's converged
     # points, +- this fraction of its inverse depth, when that plane holds seed_plane_min_fit

@@ -15,11 +15,12 @@ from vo.se3 import inv_se3
 
 
 def align_frame(frame: Frame, ref: Frame, ids: np.ndarray, px: np.ndarray, pts: PointStore,
-                camera: CameraModel, config: TrackerConfig, measure: bool = False) -> float:
+                camera: CameraModel, config: TrackerConfig, measure: bool = False,
+                rotation_only: bool = False) -> float:
     """Move frame's pose (its prior set) to where the patches around pixels `px` of points
-    `ids` in `ref` fit frame's image; with `measure`, return how badly they fit afterwards
-    (sparse_align.residual_ratio at the finest level aligned; inf when alignment was
-    impossible), else NaN."""
+    `ids` in `ref` fit frame's image (turning it only, with `rotation_only`); with
+    `measure`, return how badly they fit afterwards (sparse_align.residual_ratio at the
+    finest level aligned; inf when alignment was impossible), else NaN."""
     alive = (pts.status[ids] == CANDIDATE) | (pts.status[ids] == CONVERGED)
     if alive.sum() < MIN_POSE_MATCHES:
         return np.inf
@@ -30,7 +31,7 @@ def align_frame(frame: Frame, ref: Frame, ids: np.ndarray, px: np.ndarray, pts: 
     T_cur_ref = frame.T_c_w @ inv_se3(ref.T_c_w)
     T_cur_ref = sparse_align.align(camera.params, ref.pyr, frame.pyr, px, xyz, T_cur_ref,
                                    config.align_max_level, config.align_min_level,
-                                   config.align_iterations, config.align_robust)
+                                   config.align_iterations, config.align_robust, rotation_only)
     frame.T_c_w = T_cur_ref @ ref.T_c_w
     if not measure:
         return np.nan

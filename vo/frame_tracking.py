@@ -16,7 +16,7 @@ from vo.map_matching import MapMatcher, Matches
 from vo.pose_optimizer import pose_covariance
 from vo.quality import LostCounter
 from vo.result import FrameResult, Quality, ms_since
-from vo.se3 import inv_se3
+from vo.se3 import inv_se3, rotation_angle_deg
 
 
 class FrameTracking:
@@ -28,6 +28,7 @@ class FrameTracking:
         self.keyframes = keyframes
         self.last: Frame | None = None  # the last frame with a pose in this map
         self.motion = np.eye(4)  # T_c_w of the last frame times the inverse of the one before
+        self.turn_rate = 0.0  # degrees per second the camera turned in that motion
         self.lost = LostCounter(config)
 
     def track(self, frame: Frame, timings: dict[str, float]) -> tuple[FrameResult, bool]:
@@ -53,6 +54,8 @@ class FrameTracking:
         self.lost.update(quality)
         self.matcher.accept(frame, m)
         self.motion = frame.T_c_w @ inv_se3(last.T_c_w)
+        dt = frame.t - last.t
+        self.turn_rate = rotation_angle_deg(self.motion[:3, :3]) / dt if dt > 0 else 0.0
         self.last = frame
         n_seen = m.n_inliers if cfg.kf_count_inliers else m.n_visible
         keyframe = self.keyframes.due(n_seen, quality == Quality.GOOD)
@@ -65,6 +68,7 @@ class FrameTracking:
         its result, a new segment with the covariance of its pose from its matches."""
         self.last = frame
         self.motion = np.eye(4)
+        self.turn_rate = 0.0
         self.keyframes.restart()
         frame.n_visible = n_visible
         ids = frame.feat_point
@@ -74,14 +78,30 @@ class FrameTracking:
         return FrameResult(frame.t, frame.T_w_c, Quality.GOOD, covariance=cov, n_matches=n,
                            n_attempts=n, n_inliers=n, new_segment=True)
 
-    def resume(self, frame: Frame, m: Matches, cov: np.ndarray) -> FrameResult:
+    def resume(self, frame: Frame, m: Matches, cov: np.ndarray, count: bool = True
+               ) -> FrameResult:
         """Track on from a relocalised frame (its matches m, pose covariance cov): its result,
-        a new segment."""
-        self.matcher.accept(frame, m)
+        a new segment (the pose may jump) in the same map (relocalized); without `count`, the
+        points' found/missed counts are left as they are (a candidate pose, not yet
+        believed)."""
+        self.matcher.accept(frame, m, count)
         self.lost = LostCounter(self.config)
         self.motion = np.eye(4)
+        self.turn_rate = 0.0
         self.last = frame
         return FrameResult(frame.t, frame.T_w_c, self.matcher.quality(m), covariance=cov,
                            n_matches=len(m.ids), n_attempts=m.n_attempts,
-                           n_inliers=m.n_inliers, new_segment=True,
+                           n_inliers=m.n_inliers, new_segment=True, relocalized=True,
                            n_hypotheses=m.n_hypotheses)
+
+    def save(self) -> tuple:
+        """What tracking goes on from (restore puts it back)."""
+        kf = self.keyframes
+        return (self.last, self.motion, self.turn_rate, self.lost, kf.frames_since_kf,
+                kf.kf_visible)
+
+    def restore(self, saved: tuple) -> None:
+        """Go on from what save returned (a candidate tracked from was not confirmed)."""
+        kf = self.keyframes
+        (self.last, self.motion, self.turn_rate, self.lost, kf.frames_since_kf,
+         kf.kf_visible) = saved

@@ -92,14 +92,22 @@ class MapMatcher:
             return Quality.BAD
         return classify(m.n_inliers, m.n_attempts, self.config)
 
-    def accept(self, frame: Frame, m: Matches) -> None:
-        """Give frame its refined pose and matches; update the points' found/missed counts."""
-        cfg = self.config
+    def accept(self, frame: Frame, m: Matches, count: bool = True) -> None:
+        """Give frame its refined pose and matches; with `count`, update the points'
+        found/missed counts (see count)."""
         ids, inlier = m.ids, m.inlier
         frame.T_c_w = orthonormalized(m.T)
         frame.pose_info = m.H
         frame.set_features(ids[inlier], m.uv[inlier], m.levels[inlier])
         frame.n_visible = m.n_visible
+        if count:
+            self.count(m)
+
+    def count(self, m: Matches) -> None:
+        """Update the found/missed (and rejected) counts of the points of an accepted frame's
+        matches m; points that keep failing leave the map."""
+        cfg = self.config
+        ids, inlier = m.ids, m.inlier
         pts = self.map.points
         pts.n_found[ids[inlier]] += 1
         if cfg.outlier_rejection:

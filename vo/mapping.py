@@ -9,7 +9,7 @@ from collections.abc import Callable
 import numba
 import numpy as np
 
-from calib.camera import unproject_pixel
+from calib.camera import project_point, unproject_pixel
 from vo.bundle_adjustment import local_ba
 from vo.config import TrackerConfig
 from vo.depth_filter import linearity_index, update_seed
@@ -17,9 +17,9 @@ from vo.depth_seeds import measured_inverse_depth
 from vo.frame import Frame
 from vo.initialization import best_per_cell
 from vo.map import CANDIDATE, CONVERGED, Map
-from vo.matcher import inverse_depth_sigma, match_epipolar, triangulate_depth
+from vo.matcher import MIN_RHO, inverse_depth_sigma, match_epipolar, triangulate_depth
 from vo.orb import DESC_BYTES, OrbQuery, describe_levels, query
-from vo.se3 import inv_se3
+from vo.se3 import inv_se3, transform
 
 SHI_TOMASI_HALF = 3
 # a point lies on a fitted plane within this fraction of its distance
@@ -71,6 +71,20 @@ def _measure(params, layout, ref_flat, ref_obs, rho, sigma, T_cur_ref, cur_flat,
 
 
 @numba.njit(cache=True, nogil=True)
+def in_view(params, T_cur_ref, f, rho, sigma, width, height):
+    """True when the point on bearing f of a reference camera projects inside a width x height
+    image at T_cur_ref at some inverse depth of its range rho +- 2 sigma (its mean, nearest
+    or farthest): where the epipolar search could find it."""
+    for r in (rho, rho + 2.0 * sigma, max(rho - 2.0 * sigma, MIN_RHO)):
+        x, y, z = transform(T_cur_ref, f[0] / r, f[1] / r, f[2] / r)
+        if z > 0.0:
+            u, v = project_point(params, x, y, z)
+            if 0.0 <= u < width and 0.0 <= v < height:
+                return True
+    return False
+
+
+@numba.njit(cache=True, nogil=True)
 def update_candidates(params, points, idx, keyframes, T_c_w, layout, cur_flat, corners, search,
                       update, orb, dry_run):
     """Search every candidate idx in the current frame (pose T_c_w, pyramid `cur_flat`, FAST
@@ -80,15 +94,16 @@ def update_candidates(params, points, idx, keyframes, T_c_w, layout, cur_flat, c
     `points` is the point table (host, u, v, level, f, rho, sigma, a, b, rho_range, n_failed,
     n_updates, status, pos_w: PointStore columns, updated in place), `keyframes` the (pyramids,
     T_c_w) of the map's slots, `layout` the pyramids' (offsets, widths, heights), `search` as
-    for match_epipolar, `update` = (px_angle, max_failures, min_inlier, conv_L): the angle of a
-    pixel, failed searches before a point is dropped, the inlier probability below which it is
-    dropped, the linearity index below which it has converged.
+    for match_epipolar, `update` = (px_angle, max_failures, min_inlier, conv_L, skip_unseen): the
+    angle of a pixel, failed searches before a point is dropped, the inlier probability below
+    which it is dropped, the linearity index below which it has converged, and whether points
+    out of the frame's view are left alone.
 
     Returns (found mask, level-0 positions (N, 2), delete mask)."""
     host, u, v, level, f, rho, sigma, a, b, rho_range, n_failed, n_updates, status, pos_w = (
         points)
     kf_pyr, kf_T_c_w = keyframes
-    px_angle, max_failures, min_inlier, conv_L = update
+    px_angle, max_failures, min_inlier, conv_L, skip_unseen = update
     n = idx.shape[0]
     found = np.zeros(n, dtype=np.bool_)
     uv = np.zeros((n, 2))
@@ -98,6 +113,9 @@ def update_candidates(params, points, idx, keyframes, T_c_w, layout, cur_flat, c
         p = idx[k]
         T_w_h = inv_se3(kf_T_c_w[host[p]])
         T_cur_ref = T_c_w @ T_w_h
+        if skip_unseen and not in_view(params, T_cur_ref, f[p], rho[p], sigma[p],
+                                       layout[1][0], layout[2][0]):
+            continue  # out of view: not searched, so no failed search (thesis 6.6.3)
         ok, x, tau, uc, vc = _measure(params, layout, kf_pyr[host[p]],
                                       (u[p], v[p], level[p], f[p]), rho[p], sigma[p], T_cur_ref,
                                       cur_flat, corners, search, px_angle, query(orb, k))
@@ -217,7 +235,7 @@ class Mapper:
         table = (pts.host, pts.u, pts.v, pts.level, pts.f, pts.rho, pts.sigma, pts.a, pts.b,
                  pts.rho_range, pts.n_failed, pts.n_updates, pts.status, pts.pos_w)
         update = (self.px_angle, cfg.seed_max_failures, cfg.min_inlier_probability,
-                  cfg.convergence_L)
+                  cfg.convergence_L, cfg.seed_skip_unseen)
 
         def search_all(dry_run: bool):
             return update_candidates(self.camera.params, table, cand,

@@ -57,7 +57,10 @@ def fit_subset(pos_w, obs, scale, subset, T_prior, iterations):
                 b[a] += s * (J[0, a] * ex + J[1, a] * ey)
                 for q in range(6):
                     H[a, q] += s * s * (J[0, a] * J[0, q] + J[1, a] * J[1, q])
-        xi = np.linalg.solve(H, b)
+        try:
+            xi = np.linalg.solve(H, b)
+        except Exception:  # a degenerate subset (numba catches no narrower class): no fit
+            break
         T = exp_se3(xi) @ T
         if np.sqrt(xi @ xi) < 1e-12:
             break

@@ -26,19 +26,17 @@ class Relocalizer:
         self.camera, self.config, self.matcher = camera, config, matcher
         self.map = matcher.map
 
-    def find(self, frame: Frame, timings: dict[str, float]
+    def find(self, frame: Frame, timings: dict[str, float], last: Frame | None = None
              ) -> tuple[Matches, np.ndarray] | None:
-        """The first keyframe (newest first) that gives frame a pose: the matches (the
-        refined pose in them) and the pose's covariance; None when none does."""
+        """The first reference that gives frame a pose: the last tracked frame `last` (a fast
+        turn loses the track where the camera still stands, often far from any keyframe),
+        then the keyframes, newest first. Returns the matches (the refined pose in them) and
+        the pose's covariance; None when no reference does."""
         cfg = self.config
         t0 = time.perf_counter()
-        slots = sorted(self.map.keyframes, key=lambda s: -self.map.keyframes[s].id)
-        if cfg.reloc_max_keyframes > 0:
-            slots = slots[:cfg.reloc_max_keyframes]
         found = None
-        for slot in slots:
-            if not self._align_to_keyframe(frame, self.map.keyframes[slot]) < (
-                    cfg.reloc_max_residual_ratio):
+        for ref, ids, px in self._references(last):
+            if not self._align_to_reference(frame, ref, ids, px) < cfg.reloc_max_residual_ratio:
                 continue
             m = self.matcher.match(frame, {})
             if m.n_inliers >= cfg.reloc_min_matches and self.matcher.quality(m) != Quality.BAD:
@@ -49,17 +47,36 @@ class Relocalizer:
         timings["relocalize"] = ms_since(t0)
         return found
 
-    def _align_to_keyframe(self, frame: Frame, kf: Frame) -> float:
-        """Frame's pose by direct alignment to keyframe kf from the best of the shifted
-        priors; returns the residual ratio of that alignment."""
-        ids, px = self.map.observed_by(kf.slot)
+    def _references(self, last: Frame | None):
+        """(frame, point ids, level-0 pixels) to align a lost frame to: the last tracked frame
+        and its matched points (with reloc_last_frame, unless it is a keyframe), then the
+        keyframes, newest first (at most reloc_max_keyframes, 0 = all)."""
+        cfg = self.config
+        if cfg.reloc_last_frame and last is not None and not last.is_keyframe:
+            yield last, last.feat_point, last.feat_px
+        slots = sorted(self.map.keyframes, key=lambda s: -self.map.keyframes[s].id)
+        if cfg.reloc_max_keyframes > 0:
+            slots = slots[:cfg.reloc_max_keyframes]
+        for slot in slots:
+            yield (self.map.keyframes[slot], *self.map.observed_by(slot))
+
+    def _align_to_reference(self, frame: Frame, kf: Frame, ids: np.ndarray,
+                            px: np.ndarray) -> float:
+        """Frame's pose by direct alignment to reference kf (its points ids seen at pixels px)
+        from the best of the shifted priors; returns the residual ratio of that alignment."""
         X = self.map.points.pos_w[ids] @ kf.T_c_w[:3, :3].T + kf.T_c_w[:3, 3]
         depth = float(np.median(X[:, 2])) if len(X) else 1.0
+        cfg = self.config
         best, best_T = np.inf, kf.T_c_w
-        for prior in shifted_priors(kf, frame, self.camera, self.config.reloc_shift_level,
-                                    depth):
+        for prior, turned in shifted_priors(kf, frame, self.camera, cfg.reloc_shift_level,
+                                            depth):
             frame.T_c_w = prior
-            ratio = align_frame(frame, kf, ids, px, self.map.points, self.camera, self.config,
+            if turned and cfg.reloc_rotation_first:
+                # a turn (a fast rotation lost the track) also rolls, which no image shift
+                # shows: find the whole rotation first, where the camera stood
+                align_frame(frame, kf, ids, px, self.map.points, self.camera, cfg,
+                            rotation_only=True)
+            ratio = align_frame(frame, kf, ids, px, self.map.points, self.camera, cfg,
                                 measure=True)
             if ratio < best:
                 best, best_T = ratio, frame.T_c_w
@@ -68,11 +85,12 @@ class Relocalizer:
 
 
 def shifted_priors(kf: Frame, frame: Frame, camera: CameraModel, level: int,
-                   depth: float) -> list[np.ndarray]:
+                   depth: float) -> list[tuple[np.ndarray, bool]]:
     """T_c_w priors for frame from the keyframe's pose and the image shift that phase
     correlation finds between the two images at pyramid `level` (the view may be far outside
     the basin of direct alignment): the keyframe turned, and the keyframe moved sideways
-    (scene at `depth`), so that its image moves by that shift."""
+    (scene at `depth`), so that its image moves by that shift; each with whether it is the
+    turn."""
     a = np.float32(kf.pyr.images[level])
     b = np.float32(frame.pyr.images[level])
     (du, dv), _ = cv2.phaseCorrelate(a - a.mean(), b - b.mean())
@@ -81,13 +99,14 @@ def shifted_priors(kf: Frame, frame: Frame, camera: CameraModel, level: int,
     priors = []
     for su in (du, du - np.sign(du) * a.shape[1]):
         for sv in (dv, dv - np.sign(dv) * a.shape[0]):
-            priors += _shift_priors(kf.T_c_w, camera, su * 2.0 ** level, sv * 2.0 ** level,
-                                    depth)
+            turn, move = _shift_priors(kf.T_c_w, camera, su * 2.0 ** level,
+                                       sv * 2.0 ** level, depth)
+            priors += [(turn, True), (move, False)]
     return priors
 
 
 def _shift_priors(T_c_w: np.ndarray, camera: CameraModel, du: float, dv: float,
-                  depth: float) -> list[np.ndarray]:
+                  depth: float) -> tuple[np.ndarray, np.ndarray]:
     """The pose T_c_w turned, and moved sideways (scene at `depth`), so that its image content
     shifts by (du, dv) pixels."""
     # content moves by +du when the camera turns by du / f about its y axis, or moves by
@@ -95,7 +114,7 @@ def _shift_priors(T_c_w: np.ndarray, camera: CameraModel, du: float, dv: float,
     turn = np.array([0.0, 0.0, 0.0, -np.arctan(dv / camera.fy), np.arctan(du / camera.fx), 0.0])
     move = np.eye(4)
     move[:3, 3] = (du * depth / camera.fx, dv * depth / camera.fy, 0.0)
-    return [exp_se3(turn) @ T_c_w, move @ T_c_w]
+    return exp_se3(turn) @ T_c_w, move @ T_c_w
 
 
 def _rotation_std_deg(cov: np.ndarray | None) -> float:

@@ -26,7 +26,10 @@ class FrameResult:
 
     `T_w_c` is world-from-camera (None when there is no pose); `covariance` is the 6x6 covariance
     of the pose in the tracker's world frame, translation xyz then rotation xyz (a left
-    perturbation exp(d) * T_w_c); `new_segment` is true on the first pose of a new map.
+    perturbation exp(d) * T_w_c); `new_segment` is true where the poses jump: on the first pose
+    of a new map and on a relocalised one (`relocalized`: in the same map, its world frame and
+    scale go on, but the pose may jump from where dead reckoning put it, so the service
+    increments its reset counter as on any discontinuity).
     `n_attempts` counts the map points matching tried (the quality ratio's denominator),
     `n_hypotheses` the RANSAC hypotheses outlier rejection fitted (0 without it). Everything
     after `quality` is given by keyword.
@@ -41,6 +44,7 @@ class FrameResult:
     n_inliers: int = field(default=0, kw_only=True)
     timings: dict[str, float] = field(default_factory=dict, kw_only=True)
     new_segment: bool = field(default=False, kw_only=True)
+    relocalized: bool = field(default=False, kw_only=True)
     keyframe: bool = field(default=False, kw_only=True)
     n_hypotheses: int = field(default=0, kw_only=True)
 

@@ -165,15 +165,19 @@ def align_level(params, image, level, patches, jac, valid, xyz, T_cur_ref, itera
 
 def align(params: np.ndarray, ref_pyr, cur_pyr, px_ref: np.ndarray, xyz_ref: np.ndarray,
           T_cur_ref: np.ndarray, max_level: int, min_level: int, iterations: int,
-          robust: bool = True) -> np.ndarray:
+          robust: bool = True, rotation_only: bool = False) -> np.ndarray:
     """T_cur_ref refined by aligning 4x4 patches around px_ref (level 0) of points xyz_ref (in
     the reference camera) from the reference pyramid to the current one, levels max..min;
-    `robust` Tukey-weights the residuals (else plain least squares, as the thesis)."""
+    `robust` Tukey-weights the residuals (else plain least squares, as the thesis);
+    `rotation_only` keeps the translation of T_cur_ref (from one without, the camera turns
+    where the reference stood)."""
     T = np.ascontiguousarray(T_cur_ref, dtype=np.float64)
     fx, fy = float(params[1]), float(params[2])
     for level in range(max_level, min_level - 1, -1):
         patches, jac, valid = reference_patches(level_image(ref_pyr, level), level, px_ref,
                                                 xyz_ref, fx, fy)
+        if rotation_only:
+            jac[:, :, :3] = 0.0  # no gradient along translation: the update only turns
         T, _ = align_level(params, level_image(cur_pyr, level), level, patches, jac, valid,
                            xyz_ref, T, iterations, robust)
     return T

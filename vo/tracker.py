@@ -4,7 +4,8 @@ A state machine over the stages, in the shape of rpg_svo's frame handler (uzh-rp
 svo/src/frame_handler_mono.cpp): while INITIALIZING, frames go to the initialiser until it
 builds a map (vo.map_start); while TRACKING, each frame is tracked from the last one
 (vo.frame_tracking); once tracking is lost the tracker is RELOCALIZING against the map
-(vo.relocalization) while a new map is initialised on the side, which replaces the old one if
+(vo.relocalization; a pose found is believed once the next frame confirms it:
+vo.relocalizing) while a new map is initialised on the side, which replaces the old one if
 relocalisation keeps failing. With depth maps (issue 30; `depth` in the config) a map starts
 on one frame from its measured depths instead (vo.map_start.build_depth_map), metric, and so
 does a new map while lost; nothing else in tracking changes. Each frame tracked against the
@@ -36,6 +37,7 @@ from vo.mapping import Mapper
 from vo.mapping_control import InlineMapping, MappingBacklog
 from vo.mapping_thread import ThreadedMapping
 from vo.relocalization import Relocalizer
+from vo.relocalizing import Relocalizing
 from vo.reprojector import Reprojector
 from vo.result import FrameResult, Quality, ms_since
 from vo.stepped_mapping import SteppedMapping
@@ -86,11 +88,12 @@ class Tracker:
         self.mapper.after_ba = self._follow_ba
         matcher = MapMatcher(self.camera, cfg, self.map, self.reprojector)
         self.tracking = FrameTracking(cfg, matcher, KeyframePolicy(cfg, self.mapper))
-        self.relocalizer = Relocalizer(self.camera, cfg, matcher)
+        self.relocalizing = Relocalizing(cfg, Relocalizer(self.camera, cfg, matcher),
+                                         self.tracking)
         self.start = MapStart(self.camera, cfg)
         self.state = TrackerState.INITIALIZING
         self.lost_init: Initializer | None = None  # a new map, built while relocalising
-        self.view_since: int | None = None  # lost, and the view usable since this frame id
+        self.view_since: float | None = None  # lost, and the view usable since this time
         self.mapping.attach(self.mapper)
 
     def close(self) -> None:
@@ -168,10 +171,10 @@ class Tracker:
         self.mapping.frame_tracked()  # tracked: a BA may go on
         if result.quality == Quality.LOST:
             self._on_lost()  # outside the map lock: a reset joins the mapping thread
-        # mapping follows frames tracked against the map (a new map's frames are in it
-        # already; poses before the map have none)
-        if result.has_pose and self.last is frame and not (result.new_segment
-                                                            or frame.is_keyframe):
+        # mapping follows frames tracked against the map, relocalised ones too (a new map's
+        # frames are in it already; poses before the map have none)
+        new_map = result.new_segment and not result.relocalized
+        if result.has_pose and self.last is frame and not (new_map or frame.is_keyframe):
             t1 = time.perf_counter()
             self.mapping.submit(frame, keyframe)
             timings["mapping"] = ms_since(t1)
@@ -185,10 +188,10 @@ class Tracker:
             return self._initialize(frame, timings)
         if self.state is TrackerState.RELOCALIZING:
             with self.map.lock:
-                result = self._relocalize(frame, timings)
+                result, keyframe = self._relocalize(frame, timings)
             if result.quality == Quality.LOST:
                 return self._initialize_while_lost(frame, timings, result)
-            return result, False
+            return result, keyframe
         with self.map.lock:
             return self.tracking.track(frame, timings)
 
@@ -242,25 +245,26 @@ class Tracker:
             return
         if cfg.relocalize and self.map.keyframes:
             self.state = TrackerState.RELOCALIZING
+            self.relocalizing.reset()
             self.view_since = None
             self.lost_init = (Initializer(self.camera, cfg)
                               if cfg.reinit_when_lost and not self.depth_mode else None)
         elif cfg.reinit_when_lost:
             self._reset()
 
-    def _relocalize(self, frame: Frame, timings: dict[str, float]) -> FrameResult:
-        """Frame's pose in the map, tracking going on from it; quality LOST if none."""
-        found = self.relocalizer.find(frame, timings)
-        if found is None:
-            return FrameResult(frame.t, None, Quality.LOST)
-        self.state = TrackerState.TRACKING
-        self.lost_init = None
-        return self.tracking.resume(frame, *found)
+    def _relocalize(self, frame: Frame, timings: dict[str, float]) -> tuple[FrameResult, bool]:
+        """Frame's verified pose in the map (vo.relocalizing), tracking going on from it, and
+        whether it becomes a keyframe; quality LOST if none."""
+        result, keyframe = self.relocalizing.step(frame, timings, self.last)
+        if result.has_pose:
+            self.state = TrackerState.TRACKING
+            self.lost_init = None
+        return result, keyframe
 
     def _initialize_while_lost(self, frame: Frame, timings: dict[str, float],
                                lost: FrameResult) -> tuple[FrameResult, bool]:
         """While relocalising, a new map is initialised on the side; it replaces the old map
-        once relocalisation has failed for reinit_after_lost_frames frames since the view
+        once relocalisation has failed for reinit_after_lost_s seconds since the view
         became usable (the initialiser could first track features into a frame: a covered
         lens does not count)."""
         if self.depth_mode:
@@ -270,9 +274,9 @@ class Tracker:
             return lost, False
         outcome = init_step(init, frame, timings)
         if outcome is not InitOutcome.RESTART and self.view_since is None:
-            self.view_since = frame.id
+            self.view_since = frame.t
         if not isinstance(outcome, InitialMap) or (
-                frame.id - self.view_since < self.config.reinit_after_lost_frames):
+                frame.t - self.view_since < self.config.reinit_after_lost_s):
             return lost, False
         self._reset()
         return self._start_map(init.ref, frame, outcome), True
@@ -280,14 +284,14 @@ class Tracker:
     def _restart_from_depth(self, frame: Frame, timings: dict[str, float],
                             lost: FrameResult) -> tuple[FrameResult, bool]:
         """With depth, a new map from a frame's depth replaces the old one once relocalisation
-        has failed for reinit_after_lost_frames frames since a frame could start one (enough
+        has failed for reinit_after_lost_s seconds since a frame could start one (enough
         corners with depth: a covered lens does not count)."""
         seeds = self._depth_seeds(frame, timings) if self.config.reinit_when_lost else None
         if seeds is None:
             return lost, False
         if self.view_since is None:
-            self.view_since = frame.id
-        if frame.id - self.view_since < self.config.reinit_after_lost_frames:
+            self.view_since = frame.t
+        if frame.t - self.view_since < self.config.reinit_after_lost_s:
             return lost, False
         self._reset()
         return self._start_depth_map(frame, seeds), True

@@ -95,8 +95,9 @@ class FusionConfig:
     scale_walk_climb_per_sqrt_m: float = 0.02
     # IMU (HIGHRES_IMU / SCALED_IMU / RAW_IMU): accelerometer noise and bias
     use_imu: bool = True
-    # m/s^2/sqrt(Hz) white noise, the attitude's error times g included; raise it on a frame
-    # whose vibration reaches the accelerometer
+    # m/s^2/sqrt(Hz) white noise, the attitude's error times g included: a floor; in flight
+    # the stream's own noise (motor vibration folded into its samples) is measured and used
+    # when larger (imu_noise.py)
     accel_noise: float = 0.02
     accel_bias_std: float = 0.2  # m/s^2 initial
     accel_bias_walk: float = 0.003  # m/s^2 per sqrt(s)

@@ -11,7 +11,9 @@ covariance, before the map exists too: standing on the ground the vehicle is whe
 (zero velocity fused), in a climb before the map the IMU and barometer carry it and the
 covariance grows, and while the map's scale is unknown the covariance carries that. So the
 autopilot hears from us from power-on (its VisOdom pre-arm check needs that) and never hears a
-position surer than the filter is.
+position surer than the filter is. A map the tracker started from a depth map is in metres
+(SceneResult.metric): its scale is 1 with no variance (ScaleSource.METRIC) and none of the scale
+fits runs, so its poses count in full from its first frame.
 
 Local frame: NED with the origin at the vehicle's position when the filter starts, at the height
 the autopilot itself reports then (LOCAL_POSITION_NED), so the autopilot's height does not step
@@ -40,6 +42,7 @@ from daemon.fusion.attitude import AttitudeTrack
 from daemon.fusion.clock import ClockMap
 from daemon.fusion.config import FusionConfig
 from daemon.fusion.imu_gate import ImuGate
+from daemon.fusion.imu_noise import ImuNoise
 from daemon.fusion.map_fusion import FrameInput, MapFusion, Readings, frame_input
 from daemon.fusion.output import Continuity, attitude_noise, build_estimate, horizontal_std
 from daemon.fusion.repeats import Repeats
@@ -90,6 +93,7 @@ class FusionEstimator:
         self._choices: dict[str, SourceChoice] = {}
         self._last_baro_t = -math.inf  # time of the last barometer sample fused
         self.imu_gate = ImuGate(report)
+        self.imu_noise = ImuNoise(cfg.accel_noise)  # of the stream fused
         self.repeats = Repeats()
         self.dropped_stamps = 0
         self._inbox: deque[tuple[float, object]] = deque(maxlen=INBOX_LIMIT)
@@ -278,6 +282,8 @@ class FusionEstimator:
         if not choice.offer(sample.source, sample.t):
             return
         self.sources[kind] = sample.source
+        if kind == "imu":
+            self.imu_noise.add(sample.t, sample.accel)
         if kind == "baro":
             if abs(sample.t - self._last_baro_t) < BARO_INTERVAL_S:
                 return
@@ -309,7 +315,18 @@ class FusionEstimator:
             if att is not None:
                 m.update_range(f, event.data.distance, att.R_n_b)
         elif event.kind == "baro":
-            m.update_baro(f, event.data.altitude)
+            self._baro(event.t, event.data.altitude)
+
+    def _baro(self, t: float, altitude: float) -> None:
+        """The barometer's altitude, only while no rangefinder measures the height: in flight
+        the rotors' wash moves it by up to a metre with the throttle (why ArduPilot has
+        BARO1_THST_SCALE; 0.77 m in a hover in sim/autopilot), a bias no white noise covers
+        that would pull the height the rangefinder knows to centimetres. Its offset is
+        re-referenced when it is needed again."""
+        if self.readings.fresh_range(t) is None:
+            m.update_baro(self.filter, altitude)
+        else:
+            self.filter.has_baro = False
 
     def _imu_fresh(self, t: float, nav: NavFilter | None = None) -> bool:
         f = nav or self.filter
@@ -320,7 +337,7 @@ class FusionEstimator:
         f = nav or self.filter
         att = self.attitude.at(f.t) if self._imu_fresh(t, f) else None
         f.predict(t, f.accel if att is not None else None,
-                  att.R_n_b if att is not None else None)
+                  att.R_n_b if att is not None else None, self.imu_noise.density())
 
     def _start(self, t: float) -> None:
         """Start the filter at time t once rest or motion can be told (or the wait is over):

@@ -1,6 +1,7 @@
 """One tracker frame into the navigation filter: a new map's start and scale prior, the pose
 update with the autopilot's attitude, re-anchoring, re-alignment of a map that stopped fitting,
-and, until the map converges, its scale from the climb, the IMU's motion or the scene's height.
+and, until the map converges, its scale from the climb, the IMU's motion or the scene's height
+(none of these for a metric map, started from depth: its scale is 1).
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ class FrameInput:
     segment: int
     scene_w: np.ndarray | None = None  # matched map points, tracker world (scene.py)
     fresh: bool = False  # the first frame of its map (whose median depth is map_depth_units)
+    metric: bool = False  # its map is in metres (started from a depth map): no scale to find
 
 
 def frame_input(result: object, R_c_b: np.ndarray, segment: int,
@@ -56,7 +58,7 @@ def frame_input(result: object, R_c_b: np.ndarray, segment: int,
     stretch = np.diag([np.sqrt(position_factor)] * 3 + [1.0] * 3)
     return FrameInput(T[:3, 3].copy(), T[:3, :3] @ R_c_b, stretch @ cov @ stretch,
                       result.quality, segment, getattr(result, "scene_w", None),
-                      bool(result.new_segment))
+                      bool(result.new_segment), bool(getattr(result, "metric", False)))
 
 
 @dataclass
@@ -92,12 +94,14 @@ class MapFusion:
             if att is None:
                 return
             f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b,
-                            *self._scale_prior(t, frame, att.R_n_b))
+                            *self._scale_prior(t, frame, att.R_n_b), metric=frame.metric)
             f.segment = frame.segment
             self.gate.restart()
             return
-        self._climb_scale(t, frame, att)
-        self._accel_scale(t, frame, att)
+        metric = f.scale_source is ScaleSource.METRIC
+        if not metric:  # a metric map has no scale to fit
+            self._climb_scale(t, frame, att)
+            self._accel_scale(t, frame, att)
         factor = inflation(self.cfg, frame.quality)
         imu = self.imu_fresh(t)  # without it the horizontal rows never touch the scale
         coarse = (self.cfg.coarse_inflation if imu and np.sqrt(f.P[LOG_SCALE, LOG_SCALE])
@@ -110,14 +114,15 @@ class MapFusion:
                        coarse):
             if np.linalg.norm(f.x[POS] - f.x[ANCHOR]) > self.cfg.reanchor_distance_m:
                 f.reanchor(frame.p_w)
-            self._scene_height(t, frame, R_n_b)
+            if not metric:
+                self._scene_height(t, frame, R_n_b)
         elif f.rejections["vo"] >= self.cfg.reset_after_rejections and att is not None:
             f.realigns += 1
             f.doubt_motion()
             self.gate.restart()
             # the same map: its scale holds, only where it puts the camera now is re-anchored
             f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, f.x[LOG_SCALE],
-                            float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE])))
+                            float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE])), metric=metric)
             f.rejections["vo"] = 0
         if f.scale_source is ScaleSource.PRIOR:
             f.forget_scale()

@@ -17,25 +17,39 @@ from vo.result import FrameResult
 
 @dataclass
 class SceneResult(FrameResult):
-    """A FrameResult with the tracker-world positions of the map points it matched."""
+    """A FrameResult with the tracker-world positions of the map points it matched, and
+    whether its map is metric (started from a depth map: no scale to estimate)."""
 
     scene_w: np.ndarray | None = None  # (N, 3)
+    metric: bool = False
 
 
 class SceneTracker:
-    """A vo Tracker whose results are SceneResults; everything else is the tracker's."""
+    """A vo Tracker whose results are SceneResults; everything else is the tracker's.
+
+    A map is metric when the tracker started it from a depth map (its `depth_mode` at the
+    map's first pose); relocalising into the same map keeps what the map was."""
 
     def __init__(self, tracker: object):
         self.tracker = tracker
+        self._map: object = None  # the map of the last new segment, and whether it is metric
+        self._metric = False
 
     def __getattr__(self, name: str) -> object:
         return getattr(self.tracker, name)
 
-    def process(self, image: np.ndarray, t: float) -> SceneResult:
-        """Track one frame (vo Tracker.process) and attach the points it matched."""
-        result = self.tracker.process(image, t)
+    def process(self, image: np.ndarray, t: float,
+                depth: np.ndarray | None = None) -> SceneResult:
+        """Track one frame (vo Tracker.process, with its depth map when it has one) and
+        attach the points it matched."""
+        result = (self.tracker.process(image, t) if depth is None
+                  else self.tracker.process(image, t, depth))
+        if result.new_segment and self.tracker.map is not self._map:
+            self._map = self.tracker.map
+            self._metric = bool(getattr(self.tracker, "depth_mode", False))
         values = {f.name: getattr(result, f.name) for f in fields(FrameResult)}
-        return SceneResult(**values, scene_w=matched_points(self.tracker, result))
+        return SceneResult(**values, scene_w=matched_points(self.tracker, result),
+                           metric=self._metric and result.has_pose)
 
 
 def matched_points(tracker: object, result: FrameResult) -> np.ndarray | None:

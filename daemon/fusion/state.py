@@ -63,6 +63,7 @@ class ScaleSource(enum.Enum):
     PRIOR = "prior"  # the wide prior: the filter's own scale is not trusted (forget_scale)
     GIVEN = "given"  # start_segment's, e.g. from the rangefinder
     FIT = "fit"  # an independent fit (rescale: climb against the barometer, IMU motion)
+    METRIC = "metric"  # a map started from depth: metres, ln(scale) 0 with no variance
 
 
 class NavFilter:
@@ -140,9 +141,13 @@ class NavFilter:
         self.P = np.diag(var)
 
     def start_segment(self, p_w: np.ndarray, R_w_b: np.ndarray, R_n_b: np.ndarray,
-                      log_scale: float, scale_std: float | None = None) -> None:
+                      log_scale: float, scale_std: float | None = None,
+                      metric: bool = False) -> None:
         """A new map: clone the camera position as the anchor, fresh alignment, and the scale
-        with `scale_std` (default: the prior's)."""
+        with `scale_std` (default: the prior's); a `metric` map's scale is 1, exactly and for
+        good (ScaleSource.METRIC)."""
+        if metric:
+            log_scale, scale_std = 0.0, 0.0
         self.converged = False
         self.climb = ClimbScale()
         self.motion = self._accel_scale()
@@ -155,7 +160,8 @@ class NavFilter:
         x[THETA] = 0.0
         if scale_std is None:
             scale_std = self.cfg.scale_prior_std
-        self.scale_source = (ScaleSource.GIVEN if scale_std < self.cfg.scale_prior_std
+        self.scale_source = (ScaleSource.METRIC if metric
+                             else ScaleSource.GIVEN if scale_std < self.cfg.scale_prior_std
                              else ScaleSource.PRIOR)
         for index, std in ((LOG_SCALE, scale_std),
                            (THETA, np.radians(self.cfg.attitude_std_deg)),
@@ -260,9 +266,12 @@ class NavFilter:
 
     # --- prediction ---------------------------------------------------------------------------
 
-    def predict(self, t: float, accel: np.ndarray | None, R_n_b: np.ndarray | None) -> None:
+    def predict(self, t: float, accel: np.ndarray | None, R_n_b: np.ndarray | None,
+                accel_noise: float | None = None) -> None:
         """Propagate to time t: with the IMU's specific force (held since its sample) and the
-        attitude when both are given, else with a constant-velocity model."""
+        attitude when both are given, its white noise `accel_noise` (m/s^2/sqrt(Hz) along each
+        body axis; default the configured one on all three), else with a constant-velocity
+        model."""
         dt = t - self.t
         if dt <= 0:
             return
@@ -275,10 +284,12 @@ class NavFilter:
             acc = R_n_b @ (accel - x[BIAS]) + GRAVITY_N
             F[POS, BIAS] = -0.5 * R_n_b * dt**2
             F[VEL, BIAS] = -R_n_b * dt
-            sigma = cfg.accel_noise
+            density = np.broadcast_to(cfg.accel_noise if accel_noise is None else accel_noise,
+                                      (3,))
+            q = R_n_b @ np.diag(density**2) @ R_n_b.T  # body axes into N
         else:
             acc = np.zeros(3)
-            sigma = cfg.motion_accel_std
+            q = np.eye(3) * cfg.motion_accel_std**2
         speed = float(np.linalg.norm(x[VEL]))
         horizontal_speed = float(np.linalg.norm(x[3:5]))
         x[POS] += x[VEL] * dt + 0.5 * acc * dt**2
@@ -288,18 +299,17 @@ class NavFilter:
         else:
             self.motion.interrupt()
         x[VO_TILT] *= self._tilt_decay(dt)
-        Q = self._process_noise(dt, sigma, speed, horizontal_speed, accel is not None)
+        Q = self._process_noise(dt, q, speed, horizontal_speed, accel is not None)
         self.P = F @ self.P @ F.T + Q
         self.t = t
 
-    def _process_noise(self, dt: float, sigma: float, speed: float, horizontal_speed: float,
+    def _process_noise(self, dt: float, q: np.ndarray, speed: float, horizontal_speed: float,
                        imu: bool) -> np.ndarray:
         cfg = self.cfg
         Q = np.zeros((DIM, DIM))
-        q = sigma**2
-        Q[POS, POS] = np.eye(3) * q * dt**3 / 3
-        Q[POS, VEL] = Q[VEL, POS] = np.eye(3) * q * dt**2 / 2
-        Q[VEL, VEL] = np.eye(3) * q * dt
+        Q[POS, POS] = q * dt**3 / 3  # q: white acceleration noise density^2 (3x3, N)
+        Q[POS, VEL] = Q[VEL, POS] = q * dt**2 / 2
+        Q[VEL, VEL] = q * dt
         if imu:
             Q[BIAS, BIAS] = np.eye(3) * cfg.accel_bias_walk**2 * dt
         Q[ANCHOR, ANCHOR] = np.eye(3) * (cfg.vo_drift_m_per_sqrt_m**2 * horizontal_speed
@@ -307,8 +317,9 @@ class NavFilter:
         climb_speed = abs(self.x[5])
         sideways = slice(ANCHOR.start, ANCHOR.start + 2)  # a climb's height gives the scale
         Q[sideways, sideways] += np.eye(2) * cfg.vo_drift_climb_m_per_sqrt_m**2 * climb_speed * dt
-        Q[LOG_SCALE, LOG_SCALE] = (cfg.scale_walk_per_sqrt_m**2 * horizontal_speed
-                                   + cfg.scale_walk_climb_per_sqrt_m**2 * climb_speed) * dt
+        if self.scale_source is not ScaleSource.METRIC:
+            Q[LOG_SCALE, LOG_SCALE] = (cfg.scale_walk_per_sqrt_m**2 * horizontal_speed
+                                       + cfg.scale_walk_climb_per_sqrt_m**2 * climb_speed) * dt
         Q[THETA, THETA] = np.eye(3) * np.radians(cfg.alignment_walk_deg_per_sqrt_m) ** 2 * (
             speed * dt)
         Q[GROUND, GROUND] = cfg.ground_walk_m_per_sqrt_m**2 * horizontal_speed * dt

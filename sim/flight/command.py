@@ -12,7 +12,7 @@ import argparse
 import json
 from pathlib import Path
 
-from daemon.config import Config, load_config
+from daemon.config import Config, load_config, replace
 from daemon.run_command import setup_logging
 from sdvl.errors import InputError
 from sim.flight.flight_run import FlightRun, Timing
@@ -44,6 +44,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                             "worst over them")
     parser.add_argument("--without", action="append", default=[], choices=sorted(SENSOR_STREAMS),
                         help="the autopilot does not stream this sensor to us (repeatable)")
+    parser.add_argument("--depth", action="store_true",
+                        help="RGB-D: the world's depth camera (the preset's sensor model, "
+                             "sim/synth/depth_sensor.py) feeds the service (camera.depth)")
     parser.add_argument("--size", default=DEFAULT_SIZE, metavar="WxH",
                         help=f"camera image size (default {DEFAULT_SIZE})")
     parser.add_argument("--latency-ms", type=float, default=None, metavar="MS",
@@ -92,6 +95,8 @@ def run(args: argparse.Namespace) -> int:
                          "measures its own")
     mission = load_mission(args.mission)
     config = load_config(args.config) if args.config else Config()
+    if args.depth:
+        config = replace(config, camera={"depth": True})
     setup_logging(args.log_level)
     if args.seeds is not None:
         if args.plot is not None:

@@ -19,13 +19,14 @@ import numpy as np
 from daemon import messages
 from daemon.autopilot_watch import AutopilotWatch
 from daemon.config import Config
-from daemon.frames import Frame
+from daemon.frames import Frame, FrameCheck
 from daemon.fusion.estimator import FusionEstimator
 from daemon.health import Health
 from daemon.mavlink_codec import MavlinkCodec
 from daemon.origin import OriginSetter
 from daemon.statustext import StatusTexts
 from daemon.streams import StreamKeeper
+from daemon.tracking import track
 from sdvl.errors import InputError
 from sim.replay.autopilot_process import VisionMessage
 
@@ -66,6 +67,7 @@ class LockstepCompanion:
                                          report=lambda text: self.texts.report(text, clock()),
                                          now=clock)
         self.tracker = None
+        self.check = FrameCheck()
         self.sent: list[VisionMessage] = []
         self.rows: list[dict] = []
         self._next_heartbeat = self._next_housekeeping = -np.inf
@@ -114,14 +116,16 @@ class LockstepCompanion:
                 self.origin.tick(now, target)
             self.texts.flush(now)
 
-    def track(self, index: int, t_source: float, t_capture: float,
-              image: np.ndarray) -> Tracked:
-        """Track a frame captured at `t_capture` (our clock). Only the caller's thread uses the
-        tracker, so it may be a worker."""
+    def track(self, index: int, t_source: float, t_capture: float, image: np.ndarray,
+              depth: np.ndarray | None = None) -> Tracked:
+        """Track a frame captured at `t_capture` (our clock), with the depth camera's map
+        when it has one (checked as the service's capture thread checks it). Only the
+        caller's thread uses the tracker, so it may be a worker."""
+        frame = Frame(index, t_source, t_capture, image, self.check.depth(depth, image))
         if self.tracker is None:
-            self.tracker = self.make_tracker(Frame(index, t_source, t_capture, image))
+            self.tracker = self.make_tracker(frame)
         start = time.perf_counter()
-        result = self.tracker.process(image, t_source)
+        result = track(self.tracker, frame)
         return Tracked(index, t_source, t_capture, result, time.perf_counter() - start)
 
     def publish(self, tracked: Tracked) -> None:

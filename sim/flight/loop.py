@@ -113,8 +113,8 @@ class ClosedLoop:
 
     def _render_track(self, index: int, t: float, t_capture: float,
                       T_ned_body: np.ndarray) -> Tracked:
-        image = self.world.image(index, t, T_ned_body)
-        return self.companion.track(index, t, t_capture, image)
+        image, depth = self.world.frame(index, t, T_ned_body, self.config.camera.depth)
+        return self.companion.track(index, t, t_capture, image, depth)
 
     def _result(self, cpu_s: float, wall_s: float) -> FlightRun:
         ap = self.autopilot

@@ -70,22 +70,25 @@ class RenderedCamera:
     live, finite = True, False
     name = "rendered world"
 
-    def __init__(self, world: FlightWorld, truth: TruthShare, fps: float, boot: float):
+    def __init__(self, world: FlightWorld, truth: TruthShare, fps: float, boot: float,
+                 depth: bool = False):
         self.world, self.truth, self.period, self.boot = world, truth, 1.0 / fps, boot
-        self.camera = world.camera
+        self.camera, self.depth = world.camera, depth
         self.pacer = Pacer()
         self.offered = 0
 
     def open(self) -> None:
         """Nothing to open: the world is in memory."""
 
-    def read(self) -> tuple[float, float, np.ndarray]:
-        """The next frame: exposed (the pose read) when it is due, then rendered."""
+    def read(self) -> tuple:
+        """The next frame: exposed (the pose read) when it is due, then rendered (with the
+        depth camera's map as a fourth element when it has one)."""
         self.offered += 1
         t_capture = self.pacer.wait(self.offered * self.period)
         _, T_ned_body = self.truth.read()
         t = t_capture - self.boot
-        return t, t_capture, self.world.image(self.offered, t, T_ned_body)
+        image, depth = self.world.frame(self.offered, t, T_ned_body, self.depth)
+        return (t, t_capture, image) if depth is None else (t, t_capture, image, depth)
 
     def close(self) -> None:
         """Nothing to release."""
@@ -187,7 +190,7 @@ def fly_realtime(mission: Mission, config: Config, seed: int, size: tuple[int, i
         recorder = Recorder()
         conn.send("power on")
         boot = conn.recv()
-        source = RenderedCamera(world, truth, timing.fps, boot)
+        source = RenderedCamera(world, truth, timing.fps, boot, config.camera.depth)
         service = Service(service_config, source, make_tracker, on_tracked=recorder)
         cpu0, wall0 = time.process_time(), time.perf_counter()
         asyncio.run(_serve(service, conn))

@@ -12,7 +12,7 @@ import argparse
 import json
 from pathlib import Path
 
-from daemon.config import Config, load_config
+from daemon.config import Config, load_config, replace
 from daemon.run_command import setup_logging
 from sdvl.errors import InputError
 from sim.replay.flight import SENSOR_STREAMS, is_ned
@@ -60,6 +60,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="fly a synthetic preset once per seed ('0-4', '1,3,7') and print a "
                             "line per seed and the average NEES over the runs (ANEES): the "
                             "filter's consistency is judged over flights (sim/replay/seeds.py)")
+    parser.add_argument("--depth", action="store_true",
+                        help="the sequence's depth maps go to the service with its frames, as "
+                             "from a depth camera (camera.depth): metric poses from the first "
+                             "frame (synthetic presets, sequences with a depth.txt)")
     parser.add_argument("--max-frames", type=int, default=None, metavar="N",
                         help="replay only the first N frames")
     parser.add_argument("--out", type=Path, default=None, metavar="DIR",
@@ -118,6 +122,8 @@ def run(args: argparse.Namespace) -> int:
 def _replay(sequence, config: Config, args: argparse.Namespace, out_dir: Path):
     """One replay of `sequence`: the run, its report, the aligned trajectories and reference."""
     config = choose_estimator(config, sequence, args.estimator)
+    if args.depth:
+        config = replace(config, camera={"depth": True})
     realtime = config.fusion.enabled if args.realtime is None else args.realtime
     replay = run_replay(sequence, config, realtime, args.max_frames, progress=not args.quiet,
                         without=tuple(args.without), autopilot=args.autopilot)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from daemon.camera import SequenceSource
+from daemon.camera import SequenceSource, need_depth
 from daemon.config import Config, replace
 from daemon.run_command import tracker_factory
 from daemon.service import Service, prefer_handoffs
@@ -52,8 +52,8 @@ class ReplaySource(SequenceSource):
     (the service's vision message rate limit), so every estimate reaches the autopilot."""
 
     def __init__(self, sequence: FirstFrames, realtime: bool, min_interval_s: float,
-                 on_frame: Callable[[float, float], None]):
-        super().__init__(sequence, realtime=realtime)
+                 on_frame: Callable[[float, float], None], depth: bool = False):
+        super().__init__(sequence, realtime=realtime, depth=depth)
         self.min_interval_s = 0.0 if realtime else min_interval_s * RATE_MARGIN
         self.on_frame = on_frame
         self.offered = 0
@@ -61,11 +61,11 @@ class ReplaySource(SequenceSource):
         self.flight_start_t = getattr(sequence, "start", -np.inf)  # after a pre-flight
         self.flight_start: tuple[float, float] | None = None  # (t_source, t_capture) of it
 
-    def read(self) -> tuple[float, float, np.ndarray] | None:
+    def read(self) -> tuple | None:
         item = super().read()
         if item is None:
             return None
-        t_source, t_capture, image = item
+        t_source, t_capture, *image_depth = item
         delay = self._last_capture + self.min_interval_s - t_capture
         if delay > 0:
             time.sleep(delay)
@@ -75,7 +75,7 @@ class ReplaySource(SequenceSource):
         if self.flight_start is None and t_source >= self.flight_start_t:
             self.flight_start = (t_source, t_capture)
         self.on_frame(t_source, t_capture)
-        return t_source, t_capture, image
+        return t_source, t_capture, *image_depth
 
 
 def during_replay(trajectory: Trajectory, run: ReplayRun) -> Trajectory:
@@ -158,6 +158,8 @@ def run_replay(sequence: object, config: Config, realtime: bool,
     config = replace(drone_config(config, sequence),
                      camera={"source": "testpattern", "calibration": ""})
     lockstep = config.fusion.enabled and not realtime
+    if config.camera.depth:
+        need_depth(sequence)
     if lockstep:
         if getattr(sequence, "groundtruth", None) is None:
             raise InputError("fusion without --realtime flies the autopilot from the "
@@ -207,7 +209,7 @@ def _replay(sequence: object, config: Config, plan: ReplayPlan, show: Progress,
     try:
         config = replace(config, mavlink={"link": autopilot.url})
         source = ReplaySource(frames, plan.realtime, 1.0 / config.mavlink.max_rate_hz,
-                              autopilot.frame_released)
+                              autopilot.frame_released, config.camera.depth)
         recorder = Recorder()
         service = Service(config, source, make_tracker, on_tracked=recorder)
         prefer_handoffs()

@@ -21,8 +21,9 @@ from collections.abc import Callable
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
+from daemon.camera import sequence_depth
 from daemon.config import Config, replace
-from daemon.frames import Frame, LatestSlot
+from daemon.frames import Frame, FrameCheck, LatestSlot
 from daemon.fusion.estimator import FusionEstimator
 from daemon.messages import odometry
 from daemon.tracking import TrackingThread
@@ -108,6 +109,7 @@ def run_lockstep(sequence: object, config: Config, frames: FirstFrames, flight: 
     # the autopilot's messages of the frame's processing time go first, on_frame takes them in
     tracking = TrackingThread(LatestSlot(), make_tracker, estimator, deliver=lambda _: None,
                               on_end=lambda: None)
+    check = FrameCheck()  # a depth map the tracker cannot use is counted, the image tracked
     cpu0, wall0 = time.process_time(), time.perf_counter()
     try:
         for index, (t, image) in enumerate(frames.frames()):
@@ -117,7 +119,9 @@ def run_lockstep(sequence: object, config: Config, frames: FirstFrames, flight: 
                 estimator.on_autopilot_message(messages[k][1])
                 k += 1
             clock[0] = t_capture + RESULT_DELAY_S
-            tracked = tracking.step(Frame(index, t, t_capture, image))
+            depth = (check.depth(sequence_depth(frames, index), image)
+                     if config.camera.depth else None)
+            tracked = tracking.step(Frame(index, t, t_capture, image, depth))
             if tracked is None:
                 continue
             result, estimate = tracked.result, tracked.estimate

@@ -65,6 +65,14 @@ class WithPreflight:
     def __len__(self) -> int:
         return len(self.flight) + self.count
 
+    @property
+    def has_depth(self) -> bool:
+        return self.flight.has_depth
+
+    def depth(self, index: int) -> object:
+        """Frame `index`'s depth map: the first frame's through the pre-flight."""
+        return self.flight.depth(max(index - self.count, 0))
+
     def frames(self) -> Iterator[tuple[float, np.ndarray]]:
         """(t, image): the first image at the pre-flight's times, then the flight's frames."""
         frames = iter(self.flight.frames())

@@ -34,6 +34,14 @@ class FirstFrames:
         """(t, image) of the first frames."""
         return self.sequence.frames(self.limit)
 
+    @property
+    def has_depth(self) -> bool:
+        return getattr(self.sequence, "has_depth", False)
+
+    def depth(self, index: int) -> object:
+        """Frame `index`'s depth map (sim.sequence.Sequence.depth)."""
+        return self.sequence.depth(index)
+
 
 @dataclass
 class ReplayRun:
