@@ -138,7 +138,7 @@ def test_a_tracked_keyframe_seen_through_few_points_keeps_its_pose():
     assert off[1] < 0.5 * off[0]
 
 
-@pytest.mark.parametrize("method", ["trf", "dogbox", "lm"])
+@pytest.mark.parametrize("method", ["trf", "dogbox", "lm", "gtsam"])
 def test_free_keyframes_and_depths_recover(method):
     p, T_true, rho_true, _ = _problem(np.random.default_rng(0))
     assert p.rms_px() > 1.0
@@ -341,3 +341,113 @@ def test_free_keyframes_bring_their_tracking_information():
     assert not U[free.index(4)].any()
     config.ba_keyframe_prior = False
     assert ba.build_problem(map_, 3, CAMERA, config).pose_sqrt_info is None
+
+
+def _with_pose_priors(p, rng):
+    """p with a random positive definite square-root information on each free keyframe."""
+    M = rng.normal(0, 1, (p.n_free, 6, 6))
+    U = np.array([np.linalg.cholesky(m @ m.T + np.eye(6)).T * 50.0 for m in M])
+    return ba.Problem(**{**p.__dict__, "pose_sqrt_info": U})
+
+
+def test_gtsam_graph_has_the_scipy_cost():
+    """Same residuals: the GTSAM factor graph's error at moved keyframes and depths is the
+    scipy path's cost, pose priors included."""
+    gtsam = pytest.importorskip("gtsam")
+    from vo import ba_gtsam
+
+    rng = np.random.default_rng(0)
+    p = _with_pose_priors(_problem(rng)[0], rng)
+    keep = rng.random(len(p.obs_kf)) > 0.1
+    T = p.T0.copy()
+    for k in range(p.n_free):
+        T[k] = exp_se3(rng.normal(0, 0.02, 6)) @ T[k]
+    rho = p.rho0 * (1.0 + rng.normal(0, 0.01, len(p.rho0)))
+    values = gtsam.Values()
+    for k in range(p.n_free):
+        values.insert(ba_gtsam._pose_key(gtsam, k), gtsam.Pose3(T[k]))
+    for j, r in enumerate(rho):
+        values.insert(ba_gtsam._rho_key(gtsam, j), np.array([r]))
+    graph = ba_gtsam._graph(gtsam, p, keep)
+    assert graph.error(values) == pytest.approx(ba.cost(p, T, rho, keep), rel=1e-9)
+    assert ba.cost(p, T, rho, keep) > 2 * ba.cost(p, p.T0, p.rho0, keep)  # T, rho matter
+
+
+def test_gtsam_point_jacobians_match_central_differences():
+    """By the inverse depth and by GTSAM's right perturbation (w, v) of host and observer."""
+    gtsam = pytest.importorskip("gtsam")
+    from vo.ba_gtsam import point_residuals
+
+    rng = np.random.default_rng(1)
+    T_h = exp_se3(rng.normal(0, 0.3, 6))
+    T_k = np.array([exp_se3(rng.normal(0, 0.3, 6)) for _ in range(3)])
+    f = np.array([0.1, -0.2, 1.0]) / np.linalg.norm([0.1, -0.2, 1.0])
+    xy, scale = rng.normal(0, 0.1, (3, 2)), np.array([400.0, 200.0, 100.0])
+    _, (d_rho, d_obs, d_host) = point_residuals(T_h, T_k, f, 0.25, xy, scale)
+
+    def moved(T, xi):
+        return gtsam.Pose3(T).retract(xi).matrix()
+
+    def observer(xi):
+        T = T_k.copy()
+        T[1] = moved(T_k[1], xi)
+        return point_residuals(T_h, T, f, 0.25, xy, scale)[0]
+
+    by_rho = _central_differences(
+        lambda r: point_residuals(T_h, T_k, f, r[0], xy, scale)[0], np.array([0.25]))
+    by_host = _central_differences(
+        lambda xi: point_residuals(moved(T_h, xi), T_k, f, 0.25, xy, scale)[0], np.zeros(6))
+    by_observer = _central_differences(observer, np.zeros(6))
+    np.testing.assert_allclose(d_rho, by_rho[:, 0], atol=1e-6 * np.abs(by_rho).max())
+    np.testing.assert_allclose(d_host, by_host, atol=1e-6 * np.abs(by_host).max())
+    np.testing.assert_allclose(d_obs[2:4], by_observer[2:4], atol=1e-6 * np.abs(d_obs).max())
+    assert not by_observer[[0, 1, 4, 5]].any()  # observer 1 moves only its own rows
+
+
+def test_gtsam_and_scipy_reach_the_same_answer_with_outliers_and_pose_priors():
+    pytest.importorskip("gtsam")
+    rng = np.random.default_rng(3)
+    p, _, _, bad = _problem(rng, outliers=6)
+    p = _with_pose_priors(p, rng)
+    T1, rho1, keep1 = ba.solve(p, 10, 10, method="trf")
+    T2, rho2, keep2 = ba.solve(p, 10, 10, method="gtsam")
+    assert not keep1[bad].any() and not keep2[bad].any()
+    assert np.array_equal(keep1, keep2)
+    assert ba.cost(p, T2, rho2, keep2) == pytest.approx(ba.cost(p, T1, rho1, keep1), rel=1e-3)
+    np.testing.assert_allclose(T2[:2], T1[:2], atol=1e-4)
+    np.testing.assert_allclose(rho2, rho1, rtol=1e-3)
+    assert np.array_equal(T2[2:], p.T0[2:])  # fixed keyframes stay
+
+
+def test_gtsam_stops_early_and_a_missing_gtsam_is_a_clear_error(monkeypatch):
+    pytest.importorskip("gtsam")
+    import importlib.util
+
+    from sdvl.errors import InputError
+
+    p, _, _, _ = _problem(np.random.default_rng(0))
+    T, rho, keep = ba.solve(p, 10, 10, method="gtsam", stop=lambda: True)
+    assert np.array_equal(T, p.T0) and np.array_equal(rho, p.rho0) and keep.all()
+    calls = []
+    T, rho, _ = ba.solve(p, 10, 10, method="gtsam", stop=lambda: calls.append(1) or len(calls) > 2)
+    assert _rms(p, T, rho) < p.rms_px()
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name: None)
+    with pytest.raises(InputError, match="pip install 'sdvl-companion\\[gtsam\\]'"):
+        TrackerConfig(ba_method="gtsam")
+
+
+def test_problem_observers_see_each_problem_as_built():
+    """What `sdvl ba-bench` captures: the problem before it is solved, with its map."""
+    map_, _, config = _map(np.random.default_rng(3), {2: 60, 3: 60})
+    start = map_.kf_T_c_w.copy()
+    seen = []
+    ba.PROBLEM_OBSERVERS.append(lambda p, m: seen.append((p, m)))
+    try:
+        assert ba.local_ba(map_, 4, CAMERA, config) > 0
+    finally:
+        ba.PROBLEM_OBSERVERS.pop()
+    [(problem, observed_map)] = seen
+    assert observed_map is map_
+    assert 4 in problem.slots[:problem.n_free].tolist()
+    np.testing.assert_array_equal(problem.T0, start[problem.slots])
+    assert not np.array_equal(map_.kf_T_c_w[4], start[4])  # solved after it was seen

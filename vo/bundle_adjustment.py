@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import csr_matrix
+from scipy.spatial.transform import Rotation
 
 from calib.camera import CameraModel
 from vo.config import TrackerConfig
@@ -33,6 +34,8 @@ from vo.se3 import exp_se3, inv_se3, left_jacobian
 CHI2_2DOF_95 = 5.991
 MIN_FIXED = 2  # fixed keyframes holding the gauge (pose and scale)
 MIN_POINTS = 10
+# called with each local problem as it is built, map lock held: `sdvl ba-bench` captures them
+PROBLEM_OBSERVERS: list[Callable[[Problem, Map], None]] = []
 
 
 @dataclass
@@ -240,11 +243,16 @@ def solve(p: Problem, first: int = 5, second: int = 10, method: str = "trf",
           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Optimise: `first` iterations, drop chi2(2 dof, 95%) outliers (1 px sigma), `second`
     more. Returns (T_c_w of the slots, inverse depths, kept-observation mask). `method` is
-    scipy's: 'trf' or 'dogbox' (sparse), 'lm' (MINPACK, dense). Once `stop()` says so (a
+    scipy's: 'trf' or 'dogbox' (sparse), 'lm' (MINPACK, dense), or 'gtsam' (vo.ba_gtsam:
+    Levenberg-Marquardt on a factor graph, same residuals). Once `stop()` says so (a
     frame waits for the mapping thread), the BA ends after the current iteration ('lm': the
     current round) with the best parameters so far. `pause()` is called before each
     evaluation of the residuals: a tracker holds the BA there while it tracks a frame (the
     solver's Python code would take the GIL from it)."""
+    if method == "gtsam":
+        from vo.ba_gtsam import solve_gtsam
+
+        return solve_gtsam(p, first, second, stop, pause, inliers)
     x = np.zeros(p.n_params)
     keep = np.ones(len(p.obs_kf), dtype=bool)
 
@@ -265,11 +273,46 @@ def solve(p: Problem, first: int = 5, second: int = 10, method: str = "trf",
         if np.sum(res.fun ** 2) < start:
             x = res.x
         if drop:
-            T, rho = unpack(p, x)
-            e = reprojection_errors(p, T, rho, np.ones_like(keep))
-            keep = (e ** 2).sum(axis=1) < CHI2_2DOF_95
+            keep = inliers(p, *unpack(p, x))
     T, rho = unpack(p, x)
     return T, rho, keep
+
+
+def inliers(p: Problem, T: np.ndarray, rho: np.ndarray) -> np.ndarray:
+    """Mask of the observations within the chi-square 95% bound (2 dof, 1 px sigma) at
+    keyframe poses T and inverse depths rho."""
+    e = reprojection_errors(p, T, rho, np.ones(len(p.obs_kf), dtype=bool))
+    return (e ** 2).sum(axis=1) < CHI2_2DOF_95
+
+
+def cost(p: Problem, T: np.ndarray, rho: np.ndarray, keep: np.ndarray) -> float:
+    """Half the sum of squared residuals (kept reprojection errors, depth and pose priors) at
+    keyframe poses T and inverse depths rho, whichever solver found them."""
+    x = np.concatenate([log_se3(T[k] @ inv_se3(p.T0[k])) for k in range(p.n_free)]
+                       + [rho - p.rho0])
+    return 0.5 * float(np.sum(residuals(x, p, keep) ** 2))
+
+
+def truncated_cost(p: Problem, T: np.ndarray, rho: np.ndarray) -> float:
+    """The cost with every observation's squared error capped at the chi-square bound (the
+    robust kernel the outlier cut stands for): comparable between solutions whatever each
+    solver dropped."""
+    keep = inliers(p, T, rho)
+    return cost(p, T, rho, keep) + 0.5 * CHI2_2DOF_95 * float(np.sum(~keep))
+
+
+def log_se3(T: np.ndarray) -> np.ndarray:
+    """The twist (v, w) with exp_se3(twist) = T."""
+    w = Rotation.from_matrix(T[:3, :3]).as_rotvec()
+    theta = float(np.linalg.norm(w))
+    W = _skew(w[None])[0]
+    if theta < 1e-8:
+        V_inv = np.eye(3) - 0.5 * W
+    else:
+        half = 0.5 * theta
+        V_inv = (np.eye(3) - 0.5 * W
+                 + (1.0 - half * np.cos(half) / np.sin(half)) / theta ** 2 * (W @ W))
+    return np.concatenate((V_inv @ T[:3, 3], w))
 
 
 def _paused(pause: Callable[[], None], fun: Callable) -> Callable:
@@ -338,6 +381,8 @@ def local_ba(map_: Map, slot: int, camera: CameraModel, config: TrackerConfig,
     still held (a tracker moves its last pose along before it tracks against the new map)."""
     with map_.lock:
         problem = build_problem(map_, slot, camera, config)
+        for observe in PROBLEM_OBSERVERS if problem is not None else ():
+            observe(problem, map_)
     if problem is None:
         return 0
     if problem.rms_px() < config.ba_min_rms_px:

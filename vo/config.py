@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import importlib.util
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 from sdvl.errors import InputError
 from sdvl.tables import dataclass_from_table, read_toml
+
+GTSAM_MISSING = ("ba_method = 'gtsam' needs the gtsam package: pip install "
+                 "'sdvl-companion[gtsam]' (or set ba_method = 'trf')")
 
 
 @dataclass
@@ -163,7 +167,8 @@ class TrackerConfig:
     ba_depth_prior_inflation: float = 3.0
     # scipy least_squares method, all with the analytic Jacobian: 'trf' or 'dogbox' (sparse;
     # dogbox was not faster overall and ended some problems with other observations
-    # dropped), 'lm' (MINPACK, dense: faster only on small problems)
+    # dropped), 'lm' (MINPACK, dense: faster only on small problems); or 'gtsam' (vo.ba_gtsam,
+    # the optional gtsam package; RESULTS.md: tracker-ba-solvers)
     ba_method: str = "trf"
 
     # map initialisation (6.6.1)
@@ -233,8 +238,10 @@ class TrackerConfig:
         if not 0 <= self.track_search_min_level <= self.match_max_level < self.pyramid_levels:
             raise InputError("need 0 <= track_search_min_level <= match_max_level < "
                              "pyramid_levels")
-        if self.ba_method not in ("trf", "dogbox", "lm"):
-            raise InputError("ba_method must be 'trf', 'dogbox' or 'lm'")
+        if self.ba_method not in ("trf", "dogbox", "lm", "gtsam"):
+            raise InputError("ba_method must be 'trf', 'dogbox', 'lm' or 'gtsam'")
+        if self.ba_method == "gtsam" and importlib.util.find_spec("gtsam") is None:
+            raise InputError(GTSAM_MISSING)
         if not 0 <= self.orb_track_min_level <= self.match_max_level:
             raise InputError("need 0 <= orb_track_min_level <= match_max_level")
         if self.matcher not in ("patch", "orb"):
