@@ -171,6 +171,9 @@ class FusionEstimator:
         self.timeline.add(t_capture, "frame", frame)  # None: no pose, the filter moves on
         f = self.filter
         self.timeline.run(t_capture, f.t, self._apply, f.restore, f.snapshot)
+        if f.t is not None and f.diverged:
+            self._restart_diverged(t_capture)
+            return None
         if f.t != t_capture:
             self._say_why_not_started(t_capture)
             return None
@@ -179,6 +182,17 @@ class FusionEstimator:
             f.converged = True
             self.first_aligned_s = self.first_aligned_s or t_capture
         return self._estimate(result, frame if tracked else None, t_capture)
+
+    def _restart_diverged(self, t: float) -> None:
+        """The filter's numbers broke (a starved CPU's long gaps, an input no gate caught):
+        nothing it says can be sent; it starts again from the next attitude, as at power-on,
+        and the autopilot hears of the jump by the reset counter."""
+        log.warning("fusion: the filter diverged at %.1f s (non-finite or negative variance); "
+                    "restarting it", t)
+        self.filter.reset()
+        self.timeline = Timeline(self.cfg.history_s)
+        self.gate.restart()
+        self.reset_counter += 1
 
     def _estimate(self, result: object, frame: FrameInput | None,
                   t_capture: float) -> VisionEstimate | None:

@@ -102,6 +102,16 @@ class NavFilter:
         cfg = self.cfg
         return AccelScale(cfg.accel_noise, cfg.vo_position_std_m)
 
+    def reset(self) -> None:
+        """Forget everything, as constructed (others keep their reference to this filter)."""
+        self.__init__(self.cfg)
+
+    @property
+    def diverged(self) -> bool:
+        """The state or covariance is no longer a number, or a variance went negative."""
+        return not (np.all(np.isfinite(self.x)) and np.all(np.isfinite(self.P))
+                    and np.all(np.diag(self.P) >= 0.0))
+
     def snapshot(self) -> tuple:
         """Everything needed to continue the filter from here."""
         return (self.t, self.x.copy(), self.P.copy(), self.R_nom.copy(), self.p_w0.copy(),
