@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from daemon.config import MountingConfig
+from daemon.config import Config, MountingConfig
 
 # columns: camera x, y, z axes expressed in body FRD, for an optical axis along the nose
 R_BODY_FORWARD_CAMERA = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
@@ -28,6 +28,15 @@ def body_from_camera(mounting: MountingConfig) -> np.ndarray:
         angles = PRESET_ANGLES_DEG[mounting.preset]
     roll, pitch, yaw = np.radians(angles)
     return rotation_zyx(roll, pitch, yaw) @ R_BODY_FORWARD_CAMERA
+
+
+def body_T_camera(config: Config) -> np.ndarray:
+    """T_b_c (4x4): the mounting's rotation and the fusion's camera lever arm (metres, FRD)."""
+    T_b_c = np.eye(4)
+    T_b_c[:3, :3] = body_from_camera(config.mounting)
+    f = config.fusion
+    T_b_c[:3, 3] = (f.camera_x_m, f.camera_y_m, f.camera_z_m)
+    return T_b_c
 
 
 def euler_zyx(R: np.ndarray) -> tuple[float, float, float]:

@@ -9,7 +9,7 @@ import numpy as np
 from daemon.config import Config
 from daemon.estimate import VisionEstimate
 from daemon.frames import Frame
-from daemon.mounting import body_from_camera, euler_zyx
+from daemon.mounting import body_T_camera, euler_zyx
 from daemon.obstacles import ObstacleDistances, ObstacleScan, ObstacleSettings
 
 
@@ -21,10 +21,7 @@ class ObstacleFeed:
         o = config.obstacles
         self.settings = ObstacleSettings(min_m=o.min_m, max_m=o.max_m, band_m=o.band_m)
         self.period_s = 1.0 / o.rate_hz
-        self.T_b_c = np.eye(4)
-        self.T_b_c[:3, :3] = body_from_camera(config.mounting)
-        fusion = config.fusion
-        self.T_b_c[:3, 3] = (fusion.camera_x_m, fusion.camera_y_m, fusion.camera_z_m)
+        self.T_b_c = body_T_camera(config)
         self._scanner: ObstacleDistances | None = None
         self._t0: float | None = None  # frame time of the first scan
         self._slot = -1  # the last period (since _t0) that had its scan

@@ -36,6 +36,7 @@ class ImuNoise:
         self.floor = floor
         self._last: tuple[float, np.ndarray] | None = None
         self._diffs: deque[tuple[float, np.ndarray, float]] = deque()  # (t, d^2 per axis, dt)
+        self._density: np.ndarray | None = None  # of the current window, once asked for
 
     def add(self, t: float, accel: np.ndarray) -> None:
         """A specific-force sample (body FRD, m/s^2) at time t, in the order fused."""
@@ -44,6 +45,7 @@ class ImuNoise:
         if last is None or not 0.0 < t - last[0] <= MAX_GAP_S:
             return
         self._diffs.append((t, (accel - last[1]) ** 2, t - last[0]))
+        self._density = None
         while self._diffs and self._diffs[0][0] < t - WINDOW_S:
             self._diffs.popleft()
 
@@ -52,6 +54,8 @@ class ImuNoise:
         m/s^2/sqrt(Hz)."""
         if len(self._diffs) < MIN_DIFFERENCES:
             return np.full(3, self.floor)
-        variance = 0.5 * np.mean([d[1] for d in self._diffs], axis=0)  # per sample
-        dt = float(np.median([d[2] for d in self._diffs]))
-        return np.maximum(self.floor, np.sqrt(variance * dt))
+        if self._density is None:  # asked at every propagation, changed only by a sample
+            variance = 0.5 * np.mean([d[1] for d in self._diffs], axis=0)  # per sample
+            dt = float(np.median([d[2] for d in self._diffs]))
+            self._density = np.maximum(self.floor, np.sqrt(variance * dt))
+        return self._density

@@ -18,7 +18,12 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from daemon.config import Config, MountingConfig, replace
 from daemon.fusion.config import FusionConfig
-from daemon.mounting import PRESET_ANGLES_DEG, R_BODY_FORWARD_CAMERA, body_from_camera
+from daemon.mounting import (
+    PRESET_ANGLES_DEG,
+    R_BODY_FORWARD_CAMERA,
+    body_from_camera,
+    body_T_camera,
+)
 from sim.autopilot.simulator import DEFAULT_STREAMS
 from sim.sequence import ImuSamples
 from sim.trajectory import Trajectory
@@ -73,12 +78,8 @@ def vehicle_trajectory(groundtruth: Trajectory, config: Config,
     """T_ned_b(t) = T_ned_w T_w_c(t) T_c_b: where the body is when the camera is at T_w_c, with
     the config's mounting and camera lever arm."""
     T_ned_w = np.eye(4) if T_ned_world is None else np.asarray(T_ned_world, dtype=np.float64)
-    T_b_c = np.eye(4)
-    T_b_c[:3, :3] = body_from_camera(config.mounting)
-    T_b_c[:3, 3] = (config.fusion.camera_x_m, config.fusion.camera_y_m,
-                    config.fusion.camera_z_m)
-    return Trajectory.from_matrices(groundtruth.t,
-                                    T_ned_w @ groundtruth.matrices() @ np.linalg.inv(T_b_c))
+    return Trajectory.from_matrices(groundtruth.t, T_ned_w @ groundtruth.matrices()
+                                    @ np.linalg.inv(body_T_camera(config)))
 
 
 def resampled(flight: Trajectory, rate_hz: float = RESAMPLE_HZ) -> Trajectory:
