@@ -21,6 +21,7 @@ import numpy as np
 from daemon.config import MavlinkConfig, MountingConfig
 from daemon.mounting import body_from_camera, rotation_vector, rotation_zyx
 from vo.result import Quality
+from vo.rotation_prior import Orientation
 
 QUALITY_PERCENT = {Quality.GOOD: 100, Quality.INSUFFICIENT: 50, Quality.BAD: 10}
 INFLATION = {Quality.GOOD: 1.0, Quality.INSUFFICIENT: 4.0, Quality.BAD: 25.0}  # of the covariance
@@ -59,6 +60,10 @@ class Estimator(Protocol):
         """An estimate for time t when no frame has given one for a while (asyncio thread);
         None when nothing but a frame could give one."""
 
+    def orientation(self, t_capture: float) -> Orientation | None:
+        """The camera's orientation at a frame's capture time from the autopilot's attitude,
+        for the tracker's rotation prior (tracking thread); None when not known."""
+
 
 def _finite(*arrays: np.ndarray) -> bool:
     return all(np.all(np.isfinite(a)) for a in arrays)
@@ -80,6 +85,10 @@ class PassThroughEstimator:
 
     def bridge(self, t: float) -> VisionEstimate | None:
         """Nothing between frames: without an IMU filter there is nothing to carry a pose."""
+        return None
+
+    def orientation(self, t_capture: float) -> Orientation | None:
+        """None: the pass-through keeps no attitude history to give the tracker a prior."""
         return None
 
     def on_autopilot_message(self, msg: object) -> None:

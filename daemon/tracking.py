@@ -39,11 +39,12 @@ class TrackedFrame:
     obstacles: object = None  # daemon.obstacles.ObstacleScan of its depth map, when due
 
 
-def track(tracker: object, frame: Frame) -> object:
-    """The tracker's result for a frame, with its depth map when it has one."""
-    if frame.depth is None:
-        return tracker.process(frame.image, frame.t_source)
-    return tracker.process(frame.image, frame.t_source, frame.depth)
+def track(tracker: object, frame: Frame, orientation: object = None) -> object:
+    """The tracker's result for a frame, with its depth map when it has one and the camera's
+    orientation (vo.rotation_prior.Orientation) when the estimator knows it."""
+    extra = {"depth": frame.depth, "orientation": orientation}
+    return tracker.process(frame.image, frame.t_source,
+                           **{key: value for key, value in extra.items() if value is not None})
 
 
 class HandoffGate:
@@ -130,7 +131,7 @@ class TrackingThread(threading.Thread):
         t_start = self._busy_since = time.monotonic()
         start = time.perf_counter()
         try:
-            result = track(self.tracker, frame)
+            result = track(self.tracker, frame, self.estimator.orientation(frame.t_capture))
         except Exception as exc:
             self._failed("tracker", exc)
             self.close_tracker()  # rebuilt on the next frame: a new map

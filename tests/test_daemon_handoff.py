@@ -104,7 +104,8 @@ def test_tracking_takes_the_newest_frame_once_mapping_has_room():
     """A slow mapper holds tracking before it takes a frame: the camera's frames meanwhile
     replace each other in the slot (skipped whole), and the one tracked is the newest."""
     slot, tracker, delivered = LatestSlot(), _SlowMappingTracker(), []
-    estimator = SimpleNamespace(on_frame=lambda result, t_capture: None)
+    estimator = SimpleNamespace(on_frame=lambda result, t_capture: None,
+                                orientation=lambda t_capture: None)
     thread = TrackingThread(slot, lambda frame: tracker, estimator, delivered.append,
                             lambda: None)
     thread.tracker = tracker

@@ -50,6 +50,15 @@ class TrackerConfig:
     pose_iterations: int = 10
     reprojection_inlier_px: float = 2.0
     constant_velocity: bool = True
+    # the camera's turn between frames from the caller (the autopilot's attitude, rotation
+    # prior): per-frame std of what a rigidly mounted camera's attitude gets wrong (interpolated
+    # 50 Hz attitude, a 10 ms clock error at 200 deg/s^2: ~0.07 deg) plus the caller's own
+    # variance; 0 = not used. A downward camera over flat ground cannot tell a small tilt from
+    # a sideways move (RESULTS.md: tracker-rotation-prior)
+    rotation_prior_deg: float = 0.1
+    # the prior is not used in a frame whose image alignment turned this far from it (a wrong
+    # mounting, a time error)
+    rotation_prior_gate_deg: float = 3.0
 
     # outlier rejection (6.8): RANSAC over 5-point subsets of the matches, inliers within
     # ransac_threshold_px (image pixels), hypotheses for ransac_probability at most
@@ -250,6 +259,9 @@ class TrackerConfig:
             raise InputError("orb_max_distance must be between 0 and 256")
         if not self.depth_noise_per_m2 > 0 or not self.depth_edge_rel >= 0:
             raise InputError("depth_noise_per_m2 must be positive and depth_edge_rel >= 0")
+        if not (self.rotation_prior_deg >= 0 and self.rotation_prior_gate_deg > 0):
+            raise InputError("rotation_prior_deg must be >= 0 (0: off) and "
+                             "rotation_prior_gate_deg > 0")
         if self.grid_cell < 8 or self.max_matches < 6 or self.max_keyframes < 3:
             raise InputError("grid_cell >= 8, max_matches >= 6 and max_keyframes >= 3 required")
 

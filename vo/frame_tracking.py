@@ -15,7 +15,8 @@ from vo.keyframe_policy import KeyframePolicy
 from vo.map_matching import MapMatcher, Matches
 from vo.pose_optimizer import pose_covariance
 from vo.quality import LostCounter
-from vo.result import FrameResult, Quality, ms_since
+from vo.result import FrameResult, PriorUse, Quality, ms_since
+from vo.rotation_prior import agrees, relative_prior
 from vo.se3 import inv_se3, rotation_angle_deg
 
 
@@ -38,15 +39,20 @@ class FrameTracking:
         last = self.last
         motion = self.motion if cfg.constant_velocity else np.eye(4)
         frame.T_c_w = motion @ last.T_c_w
+        prior = relative_prior(frame.orientation, last.orientation, last.T_c_w[:3, :3],
+                               cfg.rotation_prior_deg)
+        if prior is not None:
+            _turn_in_place(frame.T_c_w, prior[0])
         t0 = time.perf_counter()
         align_frame(frame, last, last.feat_point, last.feat_px, self.matcher.map.points,
                     self.matcher.camera, cfg)
         timings["align"] = ms_since(t0)
+        use = _prior_use(frame, prior, cfg.rotation_prior_gate_deg)
         m = self.matcher.match(frame, timings)
         quality = self.matcher.quality(m)
         result = FrameResult(frame.t, None, quality, n_matches=len(m.ids),
                              n_attempts=m.n_attempts, n_inliers=m.n_inliers,
-                             n_hypotheses=m.n_hypotheses)
+                             n_hypotheses=m.n_hypotheses, rotation_prior=use)
         if quality == Quality.BAD:
             if self.lost.update(quality):
                 result.quality = Quality.LOST
@@ -105,3 +111,22 @@ class FrameTracking:
         kf = self.keyframes
         (self.last, self.motion, self.turn_rate, self.lost, kf.frames_since_kf,
          kf.kf_visible) = saved
+
+
+def _turn_in_place(T_c_w: np.ndarray, R_c_w: np.ndarray) -> None:
+    """Give T_c_w the rotation R_c_w, keeping the camera's centre."""
+    centre = -T_c_w[:3, :3].T @ T_c_w[:3, 3]
+    T_c_w[:3, :3] = R_c_w
+    T_c_w[:3, 3] = -R_c_w @ centre
+
+
+def _prior_use(frame: Frame, prior: tuple[np.ndarray, float] | None,
+               gate_deg: float) -> PriorUse:
+    """Set frame's rotation prior for the pose refinement when the image alignment agrees
+    with it; how it was used."""
+    if prior is None:
+        return PriorUse.NONE
+    if not agrees(frame.T_c_w[:3, :3], prior[0], gate_deg):
+        return PriorUse.REJECTED
+    frame.R_prior, frame.prior_info = prior
+    return PriorUse.USED

@@ -127,7 +127,8 @@ class MapMatcher:
                                  pts.rho[ids], pts.sigma[ids], 1.0 / self.focal)
         return optimize_pose(np.ascontiguousarray(pts.pos_w[ids]), obs,
                              np.ascontiguousarray(levels, dtype=np.int64), whiten, frame.T_c_w,
-                             self.config.pose_iterations, 0.5 / self.focal)
+                             self.config.pose_iterations, 0.5 / self.focal, frame.R_prior,
+                             frame.prior_info)
 
     def _normalised(self, uv: np.ndarray) -> np.ndarray:
         """Undistorted normalised image-plane coordinates of level-0 pixels."""

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from vo.se3 import adjoint, exp_se3, inv_se3, plane_jacobian, skew, transform
+from vo.se3 import adjoint, exp_se3, inv_se3, log_so3, plane_jacobian, skew, transform
 
 TUKEY_C = 4.6851
 MAD_TO_SIGMA = 1.4826
@@ -62,7 +62,8 @@ def _residuals(pos_w, obs, scale, whiten, T_c_w, err):
 
 
 @numba.njit(cache=True, nogil=True)
-def optimize_pose(pos_w, obs, level, whiten, T_c_w, iterations, sigma_floor):
+def optimize_pose(pos_w, obs, level, whiten, T_c_w, iterations, sigma_floor, R_prior,
+                  prior_info):
     """Refine T_c_w from world points pos_w observed at normalised coordinates obs, errors
     whitened by the 2x2 matrices `whiten` (see depth_whitening).
 
@@ -104,6 +105,12 @@ def optimize_pose(pos_w, obs, level, whiten, T_c_w, iterations, sigma_floor):
                 b[a] += wgt * (Jw[0, a] * err[i, 0] + Jw[1, a] * err[i, 1])
                 for q in range(6):
                     H[a, q] += wgt * (Jw[0, a] * Jw[0, q] + Jw[1, a] * Jw[1, q])
+        if prior_info > 0.0:
+            e_r = log_so3(R_prior @ T[:3, :3].T)
+            w_r = prior_info * sigma * sigma
+            for a in range(3):
+                H[3 + a, 3 + a] += w_r
+                b[3 + a] += w_r * e_r[a]
         if abs(np.linalg.det(H)) < 1e-30:
             break
         xi = np.linalg.solve(H, b)

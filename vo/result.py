@@ -20,6 +20,14 @@ class Quality(StrEnum):
     LOST = "lost"  # bad frames in a row: relocalising or starting a new map
 
 
+class PriorUse(StrEnum):
+    """How a tracked frame used the caller's rotation prior (vo.rotation_prior)."""
+
+    NONE = "none"  # not given (or for this frame's predecessor), or off
+    USED = "used"
+    REJECTED = "rejected"  # the image alignment turned beyond the gate from it
+
+
 @dataclass
 class FrameResult:
     """One frame's outcome.
@@ -31,7 +39,8 @@ class FrameResult:
     scale go on, but the pose may jump from where dead reckoning put it, so the service
     increments its reset counter as on any discontinuity).
     `n_attempts` counts the map points matching tried (the quality ratio's denominator),
-    `n_hypotheses` the RANSAC hypotheses outlier rejection fitted (0 without it). Everything
+    `n_hypotheses` the RANSAC hypotheses outlier rejection fitted (0 without it),
+    `rotation_prior` how the caller's orientation was used. Everything
     after `quality` is given by keyword.
     """
 
@@ -47,6 +56,7 @@ class FrameResult:
     relocalized: bool = field(default=False, kw_only=True)
     keyframe: bool = field(default=False, kw_only=True)
     n_hypotheses: int = field(default=0, kw_only=True)
+    rotation_prior: PriorUse = field(default=PriorUse.NONE, kw_only=True)
 
     @property
     def has_pose(self) -> bool:

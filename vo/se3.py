@@ -107,6 +107,15 @@ def adjoint(T: np.ndarray) -> np.ndarray:
     return out
 
 
+@numba.njit(cache=True, nogil=True)
+def log_so3(R):
+    """The rotation vector w with exp(skew(w)) = R (angle below pi)."""
+    c = min(max((R[0, 0] + R[1, 1] + R[2, 2] - 1.0) / 2.0, -1.0), 1.0)
+    theta = np.arccos(c)
+    k = 0.5 if theta < 1e-8 else 0.5 * theta / np.sin(theta)
+    return np.array([k * (R[2, 1] - R[1, 2]), k * (R[0, 2] - R[2, 0]), k * (R[1, 0] - R[0, 1])])
+
+
 def rotation_angle_deg(R: np.ndarray) -> float:
     """Angle of a rotation matrix in degrees."""
     c = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)

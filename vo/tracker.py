@@ -40,6 +40,7 @@ from vo.relocalization import Relocalizer
 from vo.relocalizing import Relocalizing
 from vo.reprojector import Reprojector
 from vo.result import FrameResult, Quality, ms_since
+from vo.rotation_prior import Orientation
 from vo.stepped_mapping import SteppedMapping
 
 
@@ -134,11 +135,12 @@ class Tracker:
             last.T_c_w = bundle_adjustment.follow(last.T_c_w, last.feat_point, self.map, moved)
 
     # ------------------------------------------------------------------ per frame
-    def process(self, image: np.ndarray, t: float,
-                depth: np.ndarray | None = None) -> FrameResult:
+    def process(self, image: np.ndarray, t: float, depth: np.ndarray | None = None,
+                orientation: Orientation | None = None) -> FrameResult:
         """Track one grey uint8 image taken at time t (seconds), with its depth map when the
         camera has one (float metres along the optical axis, registered to the image, 0 or
-        NaN = none; vo.depth_seeds)."""
+        NaN = none; vo.depth_seeds) and the camera's orientation when the caller knows it
+        (vo.rotation_prior)."""
         image = np.asarray(image)
         if image.dtype != np.uint8 or image.ndim != 2:
             raise InputError(f"tracker needs a 2-D uint8 grey image, got {image.dtype} "
@@ -150,16 +152,19 @@ class Tracker:
             depth = check_depth_map(depth, self.camera.width, self.camera.height)
         self.mapping.before_frame()
         try:
-            return self._process(image, float(t), depth if self.config.depth else None)
+            return self._process(image, float(t), depth if self.config.depth else None,
+                                 orientation)
         finally:
             self.mapping.frame_tracked()
 
-    def _process(self, image: np.ndarray, t: float, depth: np.ndarray | None) -> FrameResult:
+    def _process(self, image: np.ndarray, t: float, depth: np.ndarray | None,
+                 orientation: Orientation | None) -> FrameResult:
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
         unmapped = self.mapping.unmapped()
         frame = Frame(self._frame_id, float(t), image, self.camera, self.config.pyramid_levels)
         frame.depth = depth
+        frame.orientation = orientation
         self.depth_mode = self.depth_mode or depth is not None
         self._frame_id += 1
         self.map.points.newest_frame = frame.id

@@ -63,6 +63,7 @@ from daemon.fusion.state import THETA, NavFilter
 from daemon.fusion.timeline import Event, Timeline
 from daemon.mounting import body_from_camera
 from vo.result import Quality
+from vo.rotation_prior import Orientation
 
 log = logging.getLogger("sdvl.fusion")
 # messages waiting for the tracking thread: 10 s of an autopilot streaming 400 a second; older
@@ -129,6 +130,18 @@ class FusionEstimator:
         estimate to send for that moment, or None."""
         with self._filter_lock:
             return self._on_frame(result, t_capture)
+
+    def orientation(self, t_capture: float) -> Orientation | None:
+        """The camera's orientation in NED at a frame's capture time (the autopilot's attitude,
+        interpolated or carried by its rates, times the mounting) with the variance of what
+        the attitude samples may have missed, for the tracker's rotation prior (tracking
+        thread); None without a recent attitude."""
+        with self._filter_lock:
+            self._drain()
+            att = self.attitude.at(t_capture)
+        if att is None:
+            return None
+        return Orientation(att.R_n_b @ self.R_c_b.T, att.gap_var)
 
     def bridge(self, t: float) -> VisionEstimate | None:
         """An estimate for time t when no frame has come for a while (the tracker is busy, the

@@ -38,12 +38,10 @@ class SceneTracker:
     def __getattr__(self, name: str) -> object:
         return getattr(self.tracker, name)
 
-    def process(self, image: np.ndarray, t: float,
-                depth: np.ndarray | None = None) -> SceneResult:
-        """Track one frame (vo Tracker.process, with its depth map when it has one) and
-        attach the points it matched."""
-        result = (self.tracker.process(image, t) if depth is None
-                  else self.tracker.process(image, t, depth))
+    def process(self, image: np.ndarray, t: float, **extra: object) -> SceneResult:
+        """Track one frame (vo Tracker.process, with its depth map and the camera's
+        orientation when given) and attach the points it matched."""
+        result = self.tracker.process(image, t, **extra)
         if result.new_segment and self.tracker.map is not self._map:
             self._map = self.tracker.map
             self._metric = bool(getattr(self.tracker, "depth_mode", False))

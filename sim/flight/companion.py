@@ -117,15 +117,17 @@ class LockstepCompanion:
             self.texts.flush(now)
 
     def track(self, index: int, t_source: float, t_capture: float, image: np.ndarray,
-              depth: np.ndarray | None = None) -> Tracked:
+              depth: np.ndarray | None = None, orientation: object = None) -> Tracked:
         """Track a frame captured at `t_capture` (our clock), with the depth camera's map
-        when it has one (checked as the service's capture thread checks it). Only the
-        caller's thread uses the tracker, so it may be a worker."""
+        when it has one (checked as the service's capture thread checks it) and the camera's
+        orientation the estimator knew at the capture (`estimator.orientation`, asked on the
+        loop's thread so the flight repeats). Only the caller's thread uses the tracker, so it
+        may be a worker."""
         frame = Frame(index, t_source, t_capture, image, self.check.depth(depth, image))
         if self.tracker is None:
             self.tracker = self.make_tracker(frame)
         start = time.perf_counter()
-        result = track(self.tracker, frame)
+        result = track(self.tracker, frame, orientation)
         return Tracked(index, t_source, t_capture, result, time.perf_counter() - start)
 
     def publish(self, tracked: Tracked) -> None:

@@ -108,13 +108,15 @@ class ClosedLoop:
         """Frame `index`, where the vehicle is now: rendered and tracked by the worker."""
         tm = self.timing
         pose = self.autopilot.T_ned_body.copy()
+        t_capture = self.now + tm.our_clock_s
+        orientation = self.companion.estimator.orientation(t_capture)
         self.pending.append((self.now + tm.capture_to_send_s, camera.submit(
-            self._render_track, index, self.now, self.now + tm.our_clock_s, pose)))
+            self._render_track, index, self.now, t_capture, pose, orientation)))
 
-    def _render_track(self, index: int, t: float, t_capture: float,
-                      T_ned_body: np.ndarray) -> Tracked:
+    def _render_track(self, index: int, t: float, t_capture: float, T_ned_body: np.ndarray,
+                      orientation: object) -> Tracked:
         image, depth = self.world.frame(index, t, T_ned_body, self.config.camera.depth)
-        return self.companion.track(index, t, t_capture, image, depth)
+        return self.companion.track(index, t, t_capture, image, depth, orientation)
 
     def _result(self, cpu_s: float, wall_s: float) -> FlightRun:
         ap = self.autopilot
