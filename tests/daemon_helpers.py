@@ -33,7 +33,7 @@ class FakeTracker:
         T[:3, 3] = SPEED * t
         return T
 
-    def process(self, image: np.ndarray, t: float) -> FrameResult:
+    def process(self, image: np.ndarray, t: float, **extra) -> FrameResult:
         assert image.dtype == np.uint8 and image.ndim == 2
         self.t0 = t if self.t0 is None else self.t0
         quality, new_segment = self.script(self.index)

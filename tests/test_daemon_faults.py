@@ -197,7 +197,7 @@ class SlowTracker(FakeTracker):
         super().__init__()
         self.seconds = seconds
 
-    def process(self, image, t):
+    def process(self, image, t, **extra):
         time.sleep(self.seconds)
         return super().process(image, t)
 
@@ -225,7 +225,7 @@ class FailingTracker(FakeTracker):
         super().__init__()
         self.fails = fails
 
-    def process(self, image, t):
+    def process(self, image, t, **extra):
         if self.fails(self.index):
             self.index += 1
             raise ValueError("a bug on this frame")

@@ -53,7 +53,7 @@ class MappingFakeTracker(FakeTracker):
         self._queue: queue.Queue = queue.Queue()
         threading.Thread(target=self._mapping, daemon=True).start()
 
-    def process(self, image, t):
+    def process(self, image, t, **extra):
         if self.index == 15:
             self.mapper = _Mapper()
         result = super().process(image, t)
@@ -95,7 +95,7 @@ class _SlowMappingTracker(FakeTracker):
     def wait_for_mapping(self, timeout=None):
         return self.room.wait(timeout)
 
-    def process(self, image, t):
+    def process(self, image, t, **extra):
         self.seen.append(int(t))
         return super().process(image, t)
 

@@ -99,7 +99,7 @@ def test_new_map_segment_increments_reset_counter():
 class SlowTracker(FakeTracker):
     """Takes 0.3 s per frame: every pose is older than max_latency_s when it is ready."""
 
-    def process(self, image, t):
+    def process(self, image, t, **extra):
         time.sleep(0.3)
         return super().process(image, t)
 

@@ -138,7 +138,7 @@ def test_tracker_gets_source_time_and_the_estimate_capture_time():
     seen = []
 
     class Recording(FakeTracker):
-        def process(self, image, t):
+        def process(self, image, t, **extra):
             seen.append(t)
             return super().process(image, t)
 

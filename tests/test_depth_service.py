@@ -44,7 +44,7 @@ class DepthTracker(FakeTracker):
         super().__init__()
         self.depths: list[np.ndarray | None] = []
 
-    def process(self, image, t, depth=None):
+    def process(self, image, t, depth=None, **extra):
         self.depths.append(depth)
         return super().process(image, t)
 
@@ -93,7 +93,7 @@ class _MapTracker:
         self.map, self.depth_mode, self.last = object(), False, None
         self.results: list = []
 
-    def process(self, image, t, depth=None):
+    def process(self, image, t, depth=None, **extra):
         return self.results.pop(0)
 
 

@@ -23,7 +23,7 @@ class FakeTracker:
         self.last = None
         self.closed = False
 
-    def process(self, image: np.ndarray, t: float) -> FrameResult:
+    def process(self, image: np.ndarray, t: float, **extra) -> FrameResult:
         self.last = SimpleNamespace(t=t, feat_point=np.array([1, 4, 9]))
         return FrameResult(t, np.eye(4), "good", covariance=np.eye(6), n_matches=3)
 

@@ -56,7 +56,7 @@ class GroundTruthTracker:
         self.T_vo_ned[:3, :3] = Rotation.from_euler("xyz", [0.4, -0.2, 1.0]).as_matrix()
         self.T_vo_ned[:3, 3] = [1.0, 2.0, 3.0]
 
-    def process(self, image: np.ndarray, t: float) -> FrameResult:
+    def process(self, image: np.ndarray, t: float, **extra) -> FrameResult:
         i = int(np.argmin(np.abs(self.gt.t - t)))
         T = self.T_vo_ned @ self.gt.matrices()[i]
         T[:3, 3] *= VO_SCALE

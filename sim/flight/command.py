@@ -42,6 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     seeds.add_argument("--seeds", default=None, metavar="LIST",
                        help="fly once per seed ('0-19', '1,3,7'): a line per seed and the "
                             "worst over them")
+    parser.add_argument("--jobs", type=int, default=1, metavar="N",
+                        help="with --seeds: fly N seeds at once in their own processes (the "
+                             "virtual clock makes the table the same; default 1)")
     parser.add_argument("--without", action="append", default=[], choices=sorted(SENSOR_STREAMS),
                         help="the autopilot does not stream this sensor to us (repeatable)")
     parser.add_argument("--depth", action="store_true",
@@ -88,6 +91,9 @@ def fly(mission: Mission, config: Config, seed: int, args: argparse.Namespace) -
 
 def run(args: argparse.Namespace) -> int:
     """Fly, report, plot."""
+    if args.jobs < 1 or (args.jobs > 1 and args.realtime):
+        raise InputError("--jobs N flies N virtual-clock flights at once (N >= 1); a --realtime "
+                         "flight measures the machine, so it flies alone")
     if args.load and not args.realtime:
         raise InputError("--load loads the machine for a --realtime flight; add --realtime")
     if args.latency_ms is not None and (args.realtime or args.latency_ms < 0):
@@ -112,10 +118,23 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def fly_report(mission: Mission, config: Config, seed: int, args: argparse.Namespace) -> dict:
+    """The report of one flight (a worker process's job with --jobs)."""
+    setup_logging(args.log_level)
+    flight = fly(mission, config, seed, args)
+    return flight_report(flight, score(flight))
+
+
 def _seeds(mission: Mission, config: Config, seeds: list[int],
            args: argparse.Namespace) -> int:
-    reports = [flight_report(flight, score(flight))
-               for flight in (fly(mission, config, seed, args) for seed in seeds)]
+    if args.jobs > 1 and not args.realtime:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(min(args.jobs, len(seeds))) as pool:
+            n = len(seeds)
+            reports = list(pool.map(fly_report, [mission] * n, [config] * n, seeds, [args] * n))
+    else:
+        reports = [fly_report(mission, config, seed, args) for seed in seeds]
     summary = summarize_flights(reports)
     if args.json:
         print(json.dumps({"seeds": seeds, "runs": reports, "summary": summary}))
