@@ -37,17 +37,9 @@ class FrameTracking:
         row were bad) and whether it becomes a keyframe."""
         cfg = self.config
         last = self.last
-        motion = self.motion if cfg.constant_velocity else np.eye(4)
-        frame.T_c_w = motion @ last.T_c_w
-        prior = relative_prior(frame.orientation, last.orientation, last.T_c_w[:3, :3],
-                               cfg.rotation_prior_deg)
-        if prior is not None:
-            _turn_in_place(frame.T_c_w, prior[0])
         t0 = time.perf_counter()
-        align_frame(frame, last, last.feat_point, last.feat_px, self.matcher.map.points,
-                    self.matcher.camera, cfg)
+        use = self._align(frame, last)
         timings["align"] = ms_since(t0)
-        use = _prior_use(frame, prior, cfg.rotation_prior_gate_deg)
         m = self.matcher.match(frame, timings)
         quality = self.matcher.quality(m)
         result = FrameResult(frame.t, None, quality, n_matches=len(m.ids),
@@ -68,6 +60,28 @@ class FrameTracking:
         result.T_w_c = frame.T_w_c
         result.covariance = pose_covariance(m.H, m.sigma, result.T_w_c)
         return result, keyframe
+
+    def _align(self, frame: Frame, last: Frame) -> PriorUse:
+        """Sparse image alignment to the last frame from the predicted pose: the constant-
+        velocity motion, turned by the rotation prior when there is one; a prior the alignment
+        turns away from beyond the gate is refused and the alignment done again without it."""
+        cfg = self.config
+        predicted = (self.motion if cfg.constant_velocity else np.eye(4)) @ last.T_c_w
+        prior = relative_prior(frame.orientation, last.orientation, last.T_c_w[:3, :3],
+                               cfg.rotation_prior_deg)
+        if prior is not None:
+            frame.T_c_w = _turned_in_place(predicted, prior[0])
+            self._align_to(frame, last)
+            if agrees(frame.T_c_w[:3, :3], prior[0], cfg.rotation_prior_gate_deg):
+                frame.R_prior, frame.prior_info = prior
+                return PriorUse.USED
+        frame.T_c_w = predicted
+        self._align_to(frame, last)
+        return PriorUse.NONE if prior is None else PriorUse.REFUSED
+
+    def _align_to(self, frame: Frame, last: Frame) -> None:
+        align_frame(frame, last, last.feat_point, last.feat_px, self.matcher.map.points,
+                    self.matcher.camera, self.config)
 
     def start(self, frame: Frame, n_visible: int) -> FrameResult:
         """Track on from the second keyframe of a new map (its points `frame.feat_point`):
@@ -113,20 +127,10 @@ class FrameTracking:
          kf.kf_visible) = saved
 
 
-def _turn_in_place(T_c_w: np.ndarray, R_c_w: np.ndarray) -> None:
-    """Give T_c_w the rotation R_c_w, keeping the camera's centre."""
-    centre = -T_c_w[:3, :3].T @ T_c_w[:3, 3]
-    T_c_w[:3, :3] = R_c_w
-    T_c_w[:3, 3] = -R_c_w @ centre
+def _turned_in_place(T_c_w: np.ndarray, R_c_w: np.ndarray) -> np.ndarray:
+    """T_c_w with the rotation R_c_w, the camera's centre kept."""
+    out = T_c_w.copy()
+    out[:3, :3] = R_c_w
+    out[:3, 3] = -R_c_w @ (-T_c_w[:3, :3].T @ T_c_w[:3, 3])
+    return out
 
-
-def _prior_use(frame: Frame, prior: tuple[np.ndarray, float] | None,
-               gate_deg: float) -> PriorUse:
-    """Set frame's rotation prior for the pose refinement when the image alignment agrees
-    with it; how it was used."""
-    if prior is None:
-        return PriorUse.NONE
-    if not agrees(frame.T_c_w[:3, :3], prior[0], gate_deg):
-        return PriorUse.REJECTED
-    frame.R_prior, frame.prior_info = prior
-    return PriorUse.USED

@@ -25,7 +25,7 @@ class PriorUse(StrEnum):
 
     NONE = "none"  # not given (or for this frame's predecessor), or off
     USED = "used"
-    REJECTED = "rejected"  # the image alignment turned beyond the gate from it
+    REFUSED = "refused"  # the image alignment turned beyond the gate from it
 
 
 @dataclass

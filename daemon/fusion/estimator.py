@@ -45,6 +45,7 @@ from daemon.fusion.imu_gate import ImuGate
 from daemon.fusion.imu_noise import ImuNoise
 from daemon.fusion.map_fusion import FrameInput, MapFusion, Readings, frame_input
 from daemon.fusion.output import Continuity, attitude_noise, build_estimate, horizontal_std
+from daemon.fusion.prior_watch import PriorWatch
 from daemon.fusion.repeats import Repeats
 from daemon.fusion.rest import RestDetector
 from daemon.fusion.sensors import (
@@ -94,6 +95,7 @@ class FusionEstimator:
         self._choices: dict[str, SourceChoice] = {}
         self._last_baro_t = -math.inf  # time of the last barometer sample fused
         self.imu_gate = ImuGate(report)
+        self.prior_watch = PriorWatch(report)
         self.imu_noise = ImuNoise(cfg.accel_noise)  # of the stream fused
         self.repeats = Repeats()
         self.dropped_stamps = 0
@@ -175,6 +177,7 @@ class FusionEstimator:
 
     def _on_frame(self, result: object, t_capture: float) -> VisionEstimate | None:
         self._drain()
+        self.prior_watch.add(result.rotation_prior, t_capture)
         if result.new_segment:
             self._segment += 1
         frame = frame_input(result, self.R_c_b, self._segment, self.cfg.vo_covariance_factor)
