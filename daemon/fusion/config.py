@@ -57,6 +57,11 @@ class FusionConfig:
     # far off do not shrink the covariance before the estimate gets there
     coarse_scale_std: float = 0.2
     coarse_inflation: float = 10.0
+    # while the std of ln(scale) is above nav_scale_std the tracker's positions update only the
+    # map's scale, anchor and tilt, not the vehicle's position, velocity or IMU bias: an update
+    # linearised around a scale 1.6x off or more threw the estimate 33 m in 1.5 s, then sure of
+    # it (RESULTS.md: fly-640); the IMU, barometer and rangefinder carry the vehicle meanwhile
+    nav_scale_std: float = 0.5
     # tracker pose: floor of the position noise (metres) and inflation per tracking quality
     vo_position_std_m: float = 0.005
     vo_rotation_std_deg: float = 0.2
@@ -149,7 +154,7 @@ class FusionConfig:
                     "rest_gyro_tol", "flight_state_timeout_s",
                     "scale_prior_std", "initial_scale", "start_velocity_std",
                     "map_depth_units", "range_scale_prior_std",
-                    "coarse_scale_std", "vo_position_std_m",
+                    "coarse_scale_std", "nav_scale_std", "vo_position_std_m",
                     "vo_rotation_std_deg", "vo_covariance_factor", "reanchor_distance_m",
                     "vo_tilt_error_std_deg", "vo_error_time_s",
                     "attitude_std_deg", "heading_std_deg",

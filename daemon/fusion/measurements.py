@@ -11,6 +11,7 @@ import numpy as np
 from daemon.fusion.state import (
     ANCHOR,
     BARO,
+    BIAS,
     DIM,
     GROUND,
     LOG_SCALE,
@@ -140,7 +141,11 @@ def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarra
         R[:3, 3:] *= -1.0  # z_a carries minus the tracker's rotation error
         R[3:, :3] *= -1.0
         gate = f.cfg.gate_chi2_6dof
-    frozen = None if scale_from_motion else _without_motion(len(z), abs(u[2]) >= 1.0)
+    frozen = np.zeros((DIM, len(z)), dtype=bool)
+    if not scale_from_motion:
+        frozen |= _without_motion(len(z), abs(u[2]) >= 1.0)
+    if np.sqrt(f.P[LOG_SCALE, LOG_SCALE]) > f.cfg.nav_scale_std:
+        frozen[np.r_[POS, VEL, BIAS]] = True  # the map teaches its scale, not the motion
     disagreement = (z[:3] - h[:3]) * f.scale  # metres, N axes
     ok = gated_update(f, z, h, H, R, gate, frozen)
     fold_alignment(f)
