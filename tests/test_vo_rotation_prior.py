@@ -127,3 +127,13 @@ def test_the_fusion_gives_the_camera_orientation_from_attitude_and_mounting():
     expected = R_n_b @ body_from_camera(MountingConfig())
     assert np.degrees(Rotation.from_matrix(got.R_x_c.T @ expected).magnitude()) < 0.01
     assert 0 <= got.var < 1e-6
+
+
+def test_log_so3_is_scipys_rotation_vector():
+    from vo.se3 import log_so3
+
+    rng = np.random.default_rng(5)
+    for R in Rotation.random(50, random_state=rng):
+        assert np.allclose(log_so3(R.as_matrix()), R.as_rotvec(), atol=1e-9)
+    small = Rotation.from_rotvec([1e-10, -2e-10, 3e-10])
+    assert np.allclose(log_so3(small.as_matrix()), small.as_rotvec(), atol=1e-15)
