@@ -106,7 +106,7 @@ def optimize_pose(pos_w, obs, level, whiten, T_c_w, iterations, sigma_floor, R_p
                 for q in range(6):
                     H[a, q] += wgt * (Jw[0, a] * Jw[0, q] + Jw[1, a] * Jw[1, q])
         if prior_info > 0.0:
-            e_r = log_so3(R_prior @ T[:3, :3].T)
+            e_r = log_so3(R_prior @ np.ascontiguousarray(T[:3, :3].T))
             w_r = prior_info * sigma * sigma
             for a in range(3):
                 H[3 + a, 3 + a] += w_r
