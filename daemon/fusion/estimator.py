@@ -358,9 +358,11 @@ class FusionEstimator:
         return f.accel is not None and t - f.t_accel <= self.cfg.imu_timeout_s
 
     def _propagate(self, t: float, nav: NavFilter | None = None) -> None:
-        """Carry the filter (or `nav`, a copy) to time t on the IMU, or at constant velocity."""
+        """Carry the filter (or `nav`, a copy) to time t on the IMU, or at constant velocity.
+        The IMU's sample is turned into N by the attitude half way (at the start, a tilting
+        vehicle's acceleration came 6 ms late in the survey's accelerations)."""
         f = nav or self.filter
-        att = self.attitude.at(f.t) if self._imu_fresh(t, f) else None
+        att = self.attitude.at(0.5 * (f.t + t)) if self._imu_fresh(t, f) else None
         f.predict(t, f.accel if att is not None else None,
                   att.R_n_b if att is not None else None, self.imu_noise.density())
 

@@ -14,8 +14,8 @@ from daemon.fusion.state import (
     DIM,
     GROUND,
     LOG_SCALE,
-    POS,
     THETA,
+    TIME_OFFSET,
     VEL,
     VO_TILT,
     NavFilter,
@@ -63,10 +63,10 @@ def _position_rows(f: NavFilter, p_w: np.ndarray, R_n_b: np.ndarray
     the camera's offset from the anchor in metres."""
     x = f.x
     s_inv = float(np.exp(-x[LOG_SCALE]))
-    u = x[POS] + R_n_b @ f.lever - x[ANCHOR]
+    camera, J = f.camera(R_n_b)
+    u = camera - x[ANCHOR]
     h = s_inv * u
-    H = np.zeros((3, DIM))
-    H[:, POS] = s_inv * np.eye(3)
+    H = s_inv * J
     H[:, ANCHOR] = -s_inv * np.eye(3)
     H[:, LOG_SCALE] = -h
     H[:, THETA] = s_inv * skew(u)
@@ -97,9 +97,11 @@ def _without_motion(rows: int, climbing: bool) -> np.ndarray:
     """The gains a tracker update must not use without an IMU. Then nothing independent of the
     map knows the horizontal motion (a constant-velocity model only echoes the map), so the map
     cannot say where its anchor is or what its scale is: only the vertical row, against the
-    barometer or rangefinder, may move the anchor's height, and the scale in a climb."""
+    barometer or rangefinder, may move the anchor's height, and the scale in a climb. Nor
+    the clocks' offset: the filter then moves in the map's own time."""
     mask = np.zeros((DIM, rows), dtype=bool)
     mask[LOG_SCALE, [i for i in range(rows) if not (i == 2 and climbing)]] = True
+    mask[TIME_OFFSET, :] = True
     return mask
 
 
@@ -141,6 +143,8 @@ def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarra
         R[3:, :3] *= -1.0
         gate = f.cfg.gate_chi2_6dof
     frozen = None if scale_from_motion else _without_motion(len(z), abs(u[2]) >= 1.0)
+    if not scale_from_motion:  # no IMU: the filter moves in the map's time (_without_motion)
+        H[:, TIME_OFFSET] = 0.0
     disagreement = (z[:3] - h[:3]) * f.scale  # metres, N axes
     ok = gated_update(f, z, h, H, R, gate, frozen)
     fold_alignment(f)
