@@ -98,7 +98,7 @@ def _without_motion(rows: int, climbing: bool) -> np.ndarray:
     map knows the horizontal motion (a constant-velocity model only echoes the map), so the map
     cannot say where its anchor is or what its scale is: only the vertical row, against the
     barometer or rangefinder, may move the anchor's height, and the scale in a climb. Nor
-    the clocks' offset: the filter then moves in the map's own time."""
+    the clocks' offset: the map's own motion cannot time it against itself."""
     mask = np.zeros((DIM, rows), dtype=bool)
     mask[LOG_SCALE, [i for i in range(rows) if not (i == 2 and climbing)]] = True
     mask[TIME_OFFSET, :] = True
@@ -143,8 +143,6 @@ def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarra
         R[3:, :3] *= -1.0
         gate = f.cfg.gate_chi2_6dof
     frozen = None if scale_from_motion else _without_motion(len(z), abs(u[2]) >= 1.0)
-    if not scale_from_motion:  # no IMU: the filter moves in the map's time (_without_motion)
-        H[:, TIME_OFFSET] = 0.0
     disagreement = (z[:3] - h[:3]) * f.scale  # metres, N axes
     ok = gated_update(f, z, h, H, R, gate, frozen)
     fold_alignment(f)

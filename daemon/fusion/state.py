@@ -200,11 +200,14 @@ class NavFilter:
         """The vehicle's position (N) at the camera's clock's time of the filter, and its
         Jacobian (3 x DIM): the filter at t holds the vehicle when the autopilot's stamps,
         mapped to our clock, say t, which is TIME_OFFSET after the truth, so at the camera's t
-        the vehicle is where its velocity carried it in that time."""
+        the vehicle is where its velocity carried it in that time. A filter that never had an
+        IMU moves in the map's own time: no offset."""
         x = self.x
-        offset = float(x[TIME_OFFSET])
         J = np.zeros((3, DIM))
         J[:, POS] = np.eye(3)
+        if self.accel is None:
+            return x[POS].copy(), J
+        offset = float(x[TIME_OFFSET])
         J[:, VEL] = offset * np.eye(3)
         J[:, TIME_OFFSET] = x[VEL]
         return x[POS] + offset * x[VEL], J
@@ -244,7 +247,8 @@ class NavFilter:
         ratio = float(np.exp(log_scale - x[LOG_SCALE]))
         m = self.R_nom @ (np.asarray(p_w, float) - self.p_w0)
         s = float(np.exp(log_scale))
-        offset, velocity = float(x[TIME_OFFSET]), ratio * x[VEL]
+        offset = float(x[TIME_OFFSET]) if self.accel is not None else 0.0
+        velocity = ratio * x[VEL]
         # the map's position is the camera's at the frame's time, TIME_OFFSET after the
         # filter's (at_camera_time): the vehicle is where its velocity takes it back from there
         J = np.eye(DIM)
@@ -252,7 +256,7 @@ class NavFilter:
         J[POS, ANCHOR] = np.eye(3)
         J[VEL, VEL] *= ratio
         J[POS, VEL] = -offset * ratio * np.eye(3)
-        J[POS, TIME_OFFSET] = -velocity
+        J[POS, TIME_OFFSET] = -velocity if self.accel is not None else 0.0
         J[LOG_SCALE, LOG_SCALE] = 0.0
         P = J @ P @ J.T
         d = np.zeros(DIM)  # the new ln(scale), and how position and velocity move with it
