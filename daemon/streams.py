@@ -49,6 +49,11 @@ REASK_MIN_S = 10.0
 # the rates it measured are ours, not the autopilot's; they are not judged for WINDOW_S after
 LOOP_HELD_S = 0.5
 HELD_SAY_EVERY_S = 60.0
+# a stream said to be below its floor is back only this far above it: counted over WINDOW_S,
+# one at its floor comes and goes by a message a window (RAW_IMU at 19.5-20 Hz against 20 was
+# said 104 times in an hour)
+RECOVERED = 1.2
+REPEAT_S = 60.0  # and a need is said at most this often, however its rate comes and goes
 PARAM_WAIT_S = 1.5
 TRACKED = {name for needs in NEEDS.values() for need in needs for name in need.accepts}
 HINT_PARAMS = {"ardupilot": ("MAV1_EXTRA1", "SR0_EXTRA1",
@@ -99,7 +104,8 @@ class StreamKeeper:
         self._asked_all_at: float | None = None
         self._epoch_at: float | None = None
         self._seen: tuple[int, int] | None = None
-        self._reported: set[str] = set()
+        self._reported: set[str] = set()  # needs said to be missing, not back since
+        self._said_at: dict[str, float] = {}
         self._params_asked_at: float | None = None
         self._last_tick: float | None = None
         self._held_until = -math.inf  # rates not judged before then (the loop was held up)
@@ -245,22 +251,29 @@ class StreamKeeper:
     # --- judging -----------------------------------------------------------------------------
 
     def _judge(self, now: float) -> None:
+        """Say each need below its floor once, again only after it was clearly back
+        (RECOVERED) and REPEAT_S after it was last said."""
         for kind, status in self.statuses.items():
             if status.usable:
-                if kind in self._reported:
+                if kind in self._reported and status.rate_hz >= RECOVERED * status.need.min_hz:
                     self._reported.discard(kind)
                     log.info("%s arrives again at %.0f Hz", status.need.request, status.rate_hz)
                 continue
-            if kind in self._reported or status.need.presence == Presence.ESTIMATE:
+            if (kind in self._reported or status.need.presence == Presence.ESTIMATE
+                    or now - self._said_at.get(kind, -math.inf) < REPEAT_S):
                 continue
             if status.need.presence == Presence.SENSOR and status.rate_hz == 0:
-                self._reported.add(kind)
+                self._said(kind, now)
                 log.info("no %s from the autopilot: no %s fitted (or not streamed); the scale "
                          "comes from the IMU and the barometer", status.need.request, kind)
                 continue
             if self._hint_params_ready(now):
-                self._reported.add(kind)
+                self._said(kind, now)
                 self._say_missing(status)
+
+    def _said(self, kind: str, now: float) -> None:
+        self._reported.add(kind)
+        self._said_at[kind] = now
 
     def _hint_params_ready(self, now: float) -> bool:
         """Read the parameters that name the fix once, then wait PARAM_WAIT_S for them."""

@@ -314,3 +314,28 @@ def test_rates_measured_while_the_loop_was_held_up_blame_no_autopilot(caplog):
     assert sum("held up" in r.getMessage() for r in caplog.records) == 1
     run(keeper, autopilot, t, t + 20.0, accept_all, {"RAW_IMU": 50, "SCALED_PRESSURE": 10})
     assert [r for r in reports if "ATTITUDE" in r[0]]  # kept up again: a real outage is said
+
+
+def test_a_rate_just_under_its_floor_is_said_once(caplog):
+    """RAW_IMU at 19.75 Hz against a 20 Hz floor, counted over 2 s windows, is 19.5 or 20 Hz in
+    turn (the hour-long soak said it 104 times): said once; again only after it was clearly
+    back, and not within a minute of the last time."""
+    reports, autopilot = [], Autopilot()
+    keeper = StreamKeeper(Codec(), Watch(), usb=False, report=lambda *a: reports.append(a))
+    others = {"ATTITUDE": 50, "SCALED_PRESSURE": 10}
+    caplog.set_level(logging.INFO)
+
+    def imu_reports(t0: float, t1: float, hz: float) -> int:
+        run(keeper, autopilot, t0, t1, accept_all, {**others, "RAW_IMU": hz}, step=0.02)
+        return sum("RAW_IMU" in text for text, _ in reports)
+
+    assert imu_reports(0.0, 10.0, 50) == 0
+    assert imu_reports(10.0, 310.0, 19.75) == 1
+    assert imu_reports(310.0, 320.0, 21) == 1  # above the floor, not clearly: no news
+    assert not [r for r in caplog.records if "arrives again" in r.getMessage()]
+    assert imu_reports(320.0, 330.0, 50) == 1
+    assert [r for r in caplog.records if "RAW_IMU arrives again" in r.getMessage()]
+    assert imu_reports(330.0, 350.0, 10) == 2  # back and gone again: said again
+    run(keeper, autopilot, 350.0, 360.0, accept_all, {**others, "RAW_IMU": 50}, step=0.02)
+    assert imu_reports(360.0, 385.0, 10) == 2  # and once more, but not within a minute
+    assert imu_reports(385.0, 420.0, 10) == 3

@@ -6,7 +6,10 @@ least (arrival - remote stamp) over a sliding window belongs to the least delaye
 it is the true offset plus only the smallest transport latency. Not the very least: a message
 that arrives before it can have been sent (a corrupt stamp a little ahead, a packet the link
 reordered or replayed) would drag the estimate early and every stamp with it, so the estimate
-is the QUANTILE of the window's delays, which a few such messages cannot move. A stamp more
+is the QUANTILE of the window's delays, which such messages cannot move while they are fewer
+than that (a fuzz that reordered 4 % of the packets moved the 2 % quantile 31 ms, the 10 %
+one 9 ms). What the estimate is off by, a few milliseconds of latency, the filter finds as its
+TIME_OFFSET (state.py); what it cannot follow is the estimate jumping about. A stamp more
 than a second behind the estimate (a corrupt or very late message) or more than 50 ms ahead of
 it (a corrupt stamp) is dropped; several such in a row mean the autopilot's clock changed (a
 reboot) and restart the estimate. Stamps in UNIX time (some time_usec fields) get their own
@@ -23,7 +26,7 @@ JUMP_S = 1.0
 EARLY_S = 0.05  # arriving this much earlier than the best so far: a wrong stamp, or a new clock
 STRIKES_TO_RESTART = 5
 MAX_AHEAD_S = 0.05  # a stamp mapped this far after its own arrival is wrong
-QUANTILE = 0.02  # of the delays: below it, messages that came too early to be right
+QUANTILE = 0.1  # of the delays: below it, messages that came too early to be right
 
 
 class _Domain:

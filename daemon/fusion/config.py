@@ -143,6 +143,12 @@ class FusionConfig:
     # timing
     history_s: float = 1.0  # late messages up to this old are fused by replaying the filter
     clock_offset_window_s: float = 10.0
+    # the autopilot's stamps mapped to our clock (clock.py) against the camera's: off by the
+    # link's least latency (the offset is estimated from arrivals), the camera's own delay and
+    # the autopilot's sampling; the filter estimates it (state.py TIME_OFFSET) from this std,
+    # wandering as the clock map's estimate does
+    time_offset_std_s: float = 0.02
+    time_offset_walk_s_per_sqrt_s: float = 0.0005
     # output
     quality_good_std_m: float = 0.05  # position std that earns quality 100
     rate_std_rad_s: float = 0.05
@@ -162,7 +168,8 @@ class FusionConfig:
                     "motion_accel_std", "range_std_m", "baro_std_m", "gate_chi2_1dof",
                     "terrain_relief_m", "terrain_correlation_m", "scene_height_std_fraction",
                     "gate_chi2_3dof", "gate_chi2_6dof", "history_s", "clock_offset_window_s",
-                    "quality_good_std_m", "rate_std_rad_s", "climb_scale_min_m")
+                    "quality_good_std_m", "rate_std_rad_s", "climb_scale_min_m",
+                    "time_offset_std_s")
         for key in positive:
             if not getattr(self, key) > 0:
                 raise InputError(f"fusion.{key} must be > 0", path)
@@ -172,7 +179,8 @@ class FusionConfig:
                         "alignment_walk_deg_per_sqrt_m",
                         "scale_walk_per_sqrt_m", "scale_walk_climb_per_sqrt_m",
                         "accel_bias_walk", "range_std_fraction",
-                        "ground_walk_m_per_sqrt_m", "baro_walk_m_per_sqrt_s")
+                        "ground_walk_m_per_sqrt_m", "baro_walk_m_per_sqrt_s",
+                        "time_offset_walk_s_per_sqrt_s")
         for key in non_negative:
             if not getattr(self, key) >= 0:
                 raise InputError(f"fusion.{key} must be >= 0", path)

@@ -312,13 +312,24 @@ class FusionEstimator:
         if not choice.offer(sample.source, sample.t):
             return
         self.sources[kind] = sample.source
+        t = sample.t
         if kind == "imu":
             self.imu_noise.add(sample.t, sample.accel)
+            t = self._imu_event_time(sample.t)
         if kind == "baro":
             if abs(sample.t - self._last_baro_t) < BARO_INTERVAL_S:
                 return
             self._last_baro_t = sample.t
-        self.timeline.add(sample.t, kind, sample)
+        self.timeline.add(t, kind, sample)
+
+    def _imu_event_time(self, t: float) -> float:
+        """When the filter starts integrating an IMU sample stamped t: half a sample interval
+        before it, so each sample stands for the time around it. Held from its own stamp to
+        the next, every sample is applied half an interval late (10 ms at 50 Hz), and in a
+        climb the filter took that lag of its height for the map's scale (1 %). Not before the
+        filter's time."""
+        interval = self.imu_noise.interval()
+        return t if interval is None else t - 0.5 * interval
 
     # --- the filter ---------------------------------------------------------------------------
 
@@ -363,9 +374,11 @@ class FusionEstimator:
         return f.accel is not None and t - f.t_accel <= self.cfg.imu_timeout_s
 
     def _propagate(self, t: float, nav: NavFilter | None = None) -> None:
-        """Carry the filter (or `nav`, a copy) to time t on the IMU, or at constant velocity."""
+        """Carry the filter (or `nav`, a copy) to time t on the IMU, or at constant velocity.
+        The IMU's sample is turned into N by the attitude half way (at the start, a tilting
+        vehicle's acceleration came 6 ms late in the survey's accelerations)."""
         f = nav or self.filter
-        att = self.attitude.at(f.t) if self._imu_fresh(t, f) else None
+        att = self.attitude.at(0.5 * (f.t + t)) if self._imu_fresh(t, f) else None
         f.predict(t, f.accel if att is not None else None,
                   att.R_n_b if att is not None else None, self.imu_noise.density())
 

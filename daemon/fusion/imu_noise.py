@@ -18,6 +18,7 @@ the filter's process noise needs.
 
 from __future__ import annotations
 
+import bisect
 from collections import deque
 
 import numpy as np
@@ -35,27 +36,38 @@ class ImuNoise:
     def __init__(self, floor: float):
         self.floor = floor
         self._last: tuple[float, np.ndarray] | None = None
-        self._diffs: deque[tuple[float, np.ndarray, float]] = deque()  # (t, d^2 per axis, dt)
+        self._diffs: deque[tuple[float, np.ndarray]] = deque()  # (t, d^2 per axis)
+        self._stamps: list[float] = []  # of the window's samples, sorted
         self._density: np.ndarray | None = None  # of the current window, once asked for
 
     def add(self, t: float, accel: np.ndarray) -> None:
         """A specific-force sample (body FRD, m/s^2) at time t, in the order fused."""
         accel = np.asarray(accel, float)
+        bisect.insort(self._stamps, t)
+        del self._stamps[:bisect.bisect_left(self._stamps, self._stamps[-1] - WINDOW_S)]
+        self._density = None
         last, self._last = self._last, (t, accel)
         if last is None or not 0.0 < t - last[0] <= MAX_GAP_S:
             return
-        self._diffs.append((t, (accel - last[1]) ** 2, t - last[0]))
-        self._density = None
+        self._diffs.append((t, (accel - last[1]) ** 2))
         while self._diffs and self._diffs[0][0] < t - WINDOW_S:
             self._diffs.popleft()
 
     def density(self) -> np.ndarray:
         """White acceleration noise density of the stream along each body axis (FRD),
         m/s^2/sqrt(Hz)."""
-        if len(self._diffs) < MIN_DIFFERENCES:
-            return np.full(3, self.floor)
         if self._density is None:  # asked at every propagation, changed only by a sample
+            interval = self.interval()
+            if len(self._diffs) < MIN_DIFFERENCES or interval is None:
+                return np.full(3, self.floor)
             variance = 0.5 * np.mean([d[1] for d in self._diffs], axis=0)  # per sample
-            dt = float(np.median([d[2] for d in self._diffs]))
-            self._density = np.maximum(self.floor, np.sqrt(variance * dt))
+            self._density = np.maximum(self.floor, np.sqrt(variance * interval))
         return self._density
+
+    def interval(self) -> float | None:
+        """The stream's sample interval (s): the median gap between the window's stamps in
+        time order, whatever order they arrived in and with some lost; None before
+        MIN_DIFFERENCES gaps."""
+        gaps = np.diff(self._stamps)
+        gaps = gaps[gaps > 0.0]
+        return float(np.median(gaps)) if len(gaps) >= MIN_DIFFERENCES else None

@@ -15,8 +15,8 @@ from daemon.fusion.state import (
     DIM,
     GROUND,
     LOG_SCALE,
-    POS,
     THETA,
+    TIME_OFFSET,
     VEL,
     VO_TILT,
     NavFilter,
@@ -64,10 +64,10 @@ def _position_rows(f: NavFilter, p_w: np.ndarray, R_n_b: np.ndarray
     the camera's offset from the anchor in metres."""
     x = f.x
     s_inv = float(np.exp(-x[LOG_SCALE]))
-    u = x[POS] + R_n_b @ f.lever - x[ANCHOR]
+    camera, J = f.camera(R_n_b)
+    u = camera - x[ANCHOR]
     h = s_inv * u
-    H = np.zeros((3, DIM))
-    H[:, POS] = s_inv * np.eye(3)
+    H = s_inv * J
     H[:, ANCHOR] = -s_inv * np.eye(3)
     H[:, LOG_SCALE] = -h
     H[:, THETA] = s_inv * skew(u)
@@ -98,9 +98,11 @@ def _without_motion(rows: int, climbing: bool) -> np.ndarray:
     """The gains a tracker update must not use without an IMU. Then nothing independent of the
     map knows the horizontal motion (a constant-velocity model only echoes the map), so the map
     cannot say where its anchor is or what its scale is: only the vertical row, against the
-    barometer or rangefinder, may move the anchor's height, and the scale in a climb."""
+    barometer or rangefinder, may move the anchor's height, and the scale in a climb. Nor
+    the clocks' offset: the map's own motion cannot time it against itself."""
     mask = np.zeros((DIM, rows), dtype=bool)
     mask[LOG_SCALE, [i for i in range(rows) if not (i == 2 and climbing)]] = True
+    mask[TIME_OFFSET, :] = True
     return mask
 
 

@@ -7,7 +7,7 @@ import numpy as np
 
 from daemon.estimate import VisionEstimate
 from daemon.fusion.config import FusionConfig
-from daemon.fusion.state import POS, VEL, NavFilter
+from daemon.fusion.state import VEL, NavFilter
 from vo.result import Quality
 
 QUALITY_INFLATION_KEYS = {Quality.INSUFFICIENT: "inflate_insufficient", Quality.BAD: "inflate_bad"}
@@ -55,8 +55,9 @@ def build_estimate(f: NavFilter, cfg: FusionConfig, *, R_l_b: np.ndarray, rot_co
     it. While the tracker's updates are being rejected, the position's covariance also covers
     the last disagreement between the map and the filter: either may be the one gone wrong."""
     factor = inflation(cfg, state)
+    position, J = f.at_camera_time()
     pose_cov = np.zeros((6, 6))
-    pose_cov[:3, :3] = factor * f.P[POS, POS]
+    pose_cov[:3, :3] = factor * (J @ f.P @ J.T)
     if f.vo_disagreement:
         apart = f.vo_disagreement[-1][1]
         pose_cov[:3, :3] += np.outer(apart, apart)
@@ -66,7 +67,7 @@ def build_estimate(f: NavFilter, cfg: FusionConfig, *, R_l_b: np.ndarray, rot_co
     vel_cov[3:, 3:] = np.eye(3) * cfg.rate_std_rad_s**2
     velocity = f.x[VEL].copy()
     estimate = VisionEstimate(
-        t_capture=t_capture, t_source=t_source, position=f.x[POS].copy(), R_local_body=R_l_b,
+        t_capture=t_capture, t_source=t_source, position=position, R_local_body=R_l_b,
         velocity_local=velocity, velocity_body=R_l_b.T @ velocity, angular_rate=rates,
         pose_covariance=pose_cov, velocity_covariance=vel_cov,
         quality=quality_percent(pose_cov[:3, :3], cfg.quality_good_std_m),

@@ -4,8 +4,14 @@ sample between steps and its updates are gated Schmidt updates that filterpy's E
 State (NED local frame N, metres): vehicle position p and velocity v, accelerometer bias b_a
 (body), the camera position a at the anchor of the current map segment, ln(scale), a small
 rotation theta that corrects the nominal alignment R_N_w (tracker world -> N), the ground level
-under the rangefinder, the barometer's offset and the tracker's slowly wandering tilt error
-delta (rotation about N's north and east axes, rad).
+under the rangefinder, the barometer's offset, the tracker's slowly wandering tilt error
+delta (rotation about N's north and east axes, rad) and the time offset between the
+autopilot's stamps, mapped to our clock, and the camera's (s): the filter holds the vehicle in
+the autopilot's time, the map sees it in the camera's (at_camera_time). Unknown, it is a
+motion misplaced in time that the filter took for scale (0.1 % per ms in a climb); estimated
+from the motion's changes as a state of the filter, as M. Li and A. Mourikis do for a
+camera-IMU offset ("Online temporal calibration for camera-IMU systems", IJRR 2014; also
+VINS-Mono's td, Qin and Shen, arXiv 1808.00692).
 
 The tracker sees the camera at p_w = p_w0 + exp(-ln_s) R_w_N (p + R_N_b o - a), with p_w0 its
 own position at the anchor and o the camera's lever arm: this is the similarity between the
@@ -37,7 +43,9 @@ POS, VEL, BIAS, ANCHOR, THETA = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9,
                                  slice(13, 16))
 LOG_SCALE, GROUND, BARO = 12, 16, 17
 VO_TILT = slice(18, 20)  # about N's north and east axes: the tracker's heading does not trade
-DIM = 20  # off against its position over a flat scene below
+# off against its position over a flat scene below
+TIME_OFFSET = 20  # the autopilot's stamps, mapped to our clock, minus the truth (s)
+DIM = 21
 GRAVITY_N = np.array([0.0, 0.0, 9.80665])
 HEADING = 15  # theta's z component: rotation about N's down axis
 
@@ -148,6 +156,7 @@ class NavFilter:
         var[THETA] = 1.0
         var[GROUND] = var[BARO] = 1.0
         var[VO_TILT] = np.radians(cfg.vo_tilt_error_std_deg) ** 2
+        var[TIME_OFFSET] = cfg.time_offset_std_s**2
         self.P = np.diag(var)
 
     def start_segment(self, p_w: np.ndarray, R_w_b: np.ndarray, R_n_b: np.ndarray,
@@ -162,10 +171,12 @@ class NavFilter:
         self.climb = ClimbScale()
         self.motion = self._accel_scale()
         x, P = self.x, self.P
-        x[ANCHOR] = x[POS] + R_n_b @ self.lever
-        P[ANCHOR, :] = P[POS, :]
-        P[:, ANCHOR] = P[:, POS]
-        P[ANCHOR, ANCHOR] = P[POS, POS]
+        camera, J = self.camera(R_n_b)
+        x[ANCHOR] = camera
+        JP = J @ P
+        P[ANCHOR, :] = JP
+        P[:, ANCHOR] = JP.T
+        P[ANCHOR, ANCHOR] = JP @ J.T
         x[LOG_SCALE] = log_scale
         x[THETA] = 0.0
         if scale_std is None:
@@ -184,6 +195,27 @@ class NavFilter:
                 P[index, index] = std**2
         self.R_nom = R_n_b @ R_w_b.T
         self.p_w0 = np.asarray(p_w, float).copy()
+
+    def at_camera_time(self) -> tuple[np.ndarray, np.ndarray]:
+        """The vehicle's position (N) at the camera's clock's time of the filter, and its
+        Jacobian (3 x DIM): the filter at t holds the vehicle when the autopilot's stamps,
+        mapped to our clock, say t, which is TIME_OFFSET after the truth, so at the camera's t
+        the vehicle is where its velocity carried it in that time. A filter that never had an
+        IMU moves in the map's own time: no offset."""
+        x = self.x
+        J = np.zeros((3, DIM))
+        J[:, POS] = np.eye(3)
+        if self.accel is None:
+            return x[POS].copy(), J
+        offset = float(x[TIME_OFFSET])
+        J[:, VEL] = offset * np.eye(3)
+        J[:, TIME_OFFSET] = x[VEL]
+        return x[POS] + offset * x[VEL], J
+
+    def camera(self, R_n_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The camera's position (N) at the time of a frame fused now, and its Jacobian."""
+        position, J = self.at_camera_time()
+        return position + R_n_b @ self.lever, J
 
     def doubt_motion(self) -> None:
         """The tracker's updates were rejected in a row (vo_disagreement): the map moved, or
@@ -215,19 +247,25 @@ class NavFilter:
         ratio = float(np.exp(log_scale - x[LOG_SCALE]))
         m = self.R_nom @ (np.asarray(p_w, float) - self.p_w0)
         s = float(np.exp(log_scale))
+        offset = float(x[TIME_OFFSET]) if self.accel is not None else 0.0
+        velocity = ratio * x[VEL]
+        # the map's position is the camera's at the frame's time, TIME_OFFSET after the
+        # filter's (at_camera_time): the vehicle is where its velocity takes it back from there
         J = np.eye(DIM)
         J[POS, POS] = 0.0
         J[POS, ANCHOR] = np.eye(3)
         J[VEL, VEL] *= ratio
+        J[POS, VEL] = -offset * ratio * np.eye(3)
+        J[POS, TIME_OFFSET] = -velocity if self.accel is not None else 0.0
         J[LOG_SCALE, LOG_SCALE] = 0.0
         P = J @ P @ J.T
         d = np.zeros(DIM)  # the new ln(scale), and how position and velocity move with it
-        d[POS], d[VEL], d[LOG_SCALE] = s * m, ratio * x[VEL], 1.0
+        d[POS], d[VEL], d[LOG_SCALE] = s * m - offset * velocity, velocity, 1.0
         P += np.outer(d, d) * scale_std**2
         P[POS, POS] += np.eye(3) * self.cfg.vo_position_std_m**2
         self.P = 0.5 * (P + P.T)
-        x[POS] = x[ANCHOR] + s * m - R_n_b @ self.lever
-        x[VEL] *= ratio
+        x[POS] = x[ANCHOR] + s * m - R_n_b @ self.lever - offset * velocity
+        x[VEL] = velocity
         x[LOG_SCALE] = log_scale
         self.has_baro = False
         self.scale_source = ScaleSource.FIT
@@ -336,6 +374,7 @@ class NavFilter:
         Q[BARO, BARO] = cfg.baro_walk_m_per_sqrt_s**2 * dt
         Q[VO_TILT, VO_TILT] = np.eye(2) * np.radians(cfg.vo_tilt_error_std_deg) ** 2 * (
             1.0 - self._tilt_decay(dt) ** 2)
+        Q[TIME_OFFSET, TIME_OFFSET] = cfg.time_offset_walk_s_per_sqrt_s**2 * dt
         return Q
 
     def _tilt_decay(self, dt: float) -> float:
