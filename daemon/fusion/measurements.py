@@ -15,6 +15,7 @@ from daemon.fusion.state import (
     DIM,
     GROUND,
     LOG_SCALE,
+    POS,
     THETA,
     TIME_OFFSET,
     VEL,
