@@ -12,6 +12,7 @@ import numba
 import numpy as np
 
 from calib.camera import CameraModel, unproject_pixel
+from sdvl.errors import InputError
 from vo.orb import CornerDescriptors
 from vo.patch import from_level
 
@@ -171,3 +172,15 @@ class Frame:
         self.feat_point = point
         self.feat_px = px
         self.feat_level = level
+
+
+def check_image(image: np.ndarray, camera: CameraModel) -> np.ndarray:
+    """The image as a 2-D uint8 array of the camera's size; InputError otherwise."""
+    image = np.asarray(image)
+    if image.dtype != np.uint8 or image.ndim != 2:
+        raise InputError(f"tracker needs a 2-D uint8 grey image, got {image.dtype} "
+                         f"{image.shape}")
+    if image.shape != (camera.height, camera.width):
+        raise InputError(f"image is {image.shape[1]}x{image.shape[0]}, camera is "
+                         f"{camera.width}x{camera.height}")
+    return image

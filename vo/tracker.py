@@ -22,11 +22,10 @@ from enum import Enum
 import numpy as np
 
 from calib.camera import CameraModel
-from sdvl.errors import InputError
 from vo import bundle_adjustment
 from vo.config import TrackerConfig
 from vo.depth_seeds import DepthSeeds, check_depth_map
-from vo.frame import Frame
+from vo.frame import Frame, check_image
 from vo.frame_tracking import FrameTracking
 from vo.initialization import Initializer, InitialMap, InitOutcome
 from vo.keyframe_policy import KeyframePolicy
@@ -141,13 +140,7 @@ class Tracker:
         camera has one (float metres along the optical axis, registered to the image, 0 or
         NaN = none; vo.depth_seeds) and the camera's orientation when the caller knows it
         (vo.rotation_prior)."""
-        image = np.asarray(image)
-        if image.dtype != np.uint8 or image.ndim != 2:
-            raise InputError(f"tracker needs a 2-D uint8 grey image, got {image.dtype} "
-                             f"{image.shape}")
-        if image.shape != (self.camera.height, self.camera.width):
-            raise InputError(f"image is {image.shape[1]}x{image.shape[0]}, camera is "
-                             f"{self.camera.width}x{self.camera.height}")
+        image = check_image(image, self.camera)
         if depth is not None:
             depth = check_depth_map(depth, self.camera.width, self.camera.height)
         self.mapping.before_frame()
