@@ -37,6 +37,7 @@ from sim.replay.flight import (
     vehicle_trajectory,
 )
 from sim.replay.harness import ReplaySource, warm_up
+from sim.replay.preflight import WithPreflight
 from sim.replay.prerender import prerendered
 from sim.replay.replay_run import FirstFrames
 from sim.sequence import ImuSamples, Sequence
@@ -148,12 +149,15 @@ def _serve_service(sequence: Sequence, config: Config, frames: int,
     make_tracker = tracker_factory(config, sequence.camera)
     warm_up(make_tracker, sequence)
     flight = vehicle_trajectory(sequence.groundtruth, config, sequence.extras.get("T_ned_world"))
+    # armed after a pre-flight on the ground, as `sdvl replay` flies: a disarmed autopilot
+    # says it is landed, and the fusion would hold a flying vehicle still
     autopilot = AutopilotProcess(SimOptions(streams=sensor_streams("ardupilot", flight)),
                                  resampled(flight), body_imu(sequence),
-                                 sequence.extras.get("sensors"))
+                                 sequence.extras.get("sensors"), arm=True)
     try:
         config = replace(config, mavlink={"link": autopilot.url})
-        source = ReplaySource(FirstFrames(sequence, frames), True, 0.0, autopilot.frame_released)
+        source = ReplaySource(WithPreflight(FirstFrames(sequence, frames)), True, 0.0,
+                              autopilot.frame_released)
         service = Service(config, source, make_tracker)
         prefer_handoffs()
         sampler.start()
