@@ -111,3 +111,13 @@ def test_fusion_is_never_confidently_wrong_while_the_autopilot_is_silent(flight)
     steer the map's alignment as if fresh (7-13 % of the positions beyond 3 sigma)."""
     s = run_scenarios(flight, ["link-loss-5s", "reboot"], seed=3, window=WINDOW)
     assert all(score.beyond_share <= 0.01 for score in s), s
+
+
+def test_an_autopilot_saying_landed_in_flight_does_not_hold_the_vehicle_still(flight):
+    """HEARTBEAT STANDBY and EXTENDED_SYS_STATE ON_GROUND for 3 s in the first leg: zero
+    velocity against a vehicle that flies fails its gate, so the poses are as without."""
+    s = run_scenarios(flight, ["landed-while-flying"], seed=3, window=WINDOW)[0]
+    print(f"\n{s}")
+    assert s.crashes == 0 and s.published >= 0.8 * s.published_clean
+    assert s.beyond_3_sigma <= s.beyond_3_sigma_clean + 0.005 * s.published
+    assert s.recovery_s is not None and s.recovery_s <= 2.0

@@ -42,10 +42,9 @@ def flight_time(item: Item) -> float:
     return item.arrival - fusion_sim.BOOT_OFFSET
 
 
-def heartbeat() -> object:
+def heartbeat(status: int = mavlink2.MAV_STATE_ACTIVE) -> object:
     return mavlink2.MAVLink_heartbeat_message(
-        mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0,
-        mavlink2.MAV_STATE_ACTIVE, 3)
+        mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, status, 3)
 
 
 def clean_items(flight: fusion_sim.Flight) -> list[Item]:
@@ -163,6 +162,20 @@ def odd_stamps(seconds: float, count: int = 5) -> Callable:
     return make
 
 
+def landed_while_flying(flight, rng, window):
+    """The autopilot says the vehicle is disarmed and on the ground while it flies: every
+    HEARTBEAT with ArduCopter's STANDBY and every EXTENDED_SYS_STATE ON_GROUND (an autopilot
+    never armed says so; the soak's did for an hour)."""
+    items = clean_items(flight)
+    landed = mavlink2.MAVLink_extended_sys_state_message(
+        mavlink2.MAV_VTOL_STATE_UNDEFINED, mavlink2.MAV_LANDED_STATE_ON_GROUND)
+    changed = _during(items, window, ("HEARTBEAT", "EXTENDED_SYS_STATE"))
+    for i in changed:
+        items[i].msg = (landed if items[i].msg.get_type() == "EXTENDED_SYS_STATE"
+                        else heartbeat(mavlink2.MAV_STATE_STANDBY))
+    return to_stream(flight, items, window, len(changed))
+
+
 def garbage(flight, rng, window):
     """1 MB of random bytes spread over the window, between the packets."""
     items = clean_items(flight)
@@ -272,6 +285,7 @@ SCENARIOS: dict[str, Callable] = {
     "stray-highres-imu": stray_highres,
     "false-reboot-10s-back": odd_stamps(-10.0),
     "false-reboot-60s-ahead": odd_stamps(60.0),
+    "landed-while-flying": landed_while_flying,
     "garbage-1mb": garbage,
     "link-loss-5s": link_loss,
     "reboot": reboot,
