@@ -25,6 +25,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                                  "errors beyond 3 sigma, recovery")
     scenarios.add_argument("names", nargs="*", metavar="NAME",
                            help=f"scenarios (default all): {', '.join(SCENARIOS)}")
+    scenarios.add_argument("--window", nargs=2, type=float, default=(30.0, 40.0),
+                           metavar=("FROM", "TO"), help="the fault's seconds of the flight "
+                           "(default 30 40; some scenarios have their own length)")
     fuzz = sub.add_parser("fuzz", help="seeded fuzzed/mutated packets, scores summed")
     fuzz.add_argument("--packets", type=int, default=100_000,
                       help="fuzzed or mutated packets to send (default 100000)")
@@ -95,8 +98,10 @@ def _scenarios(args: argparse.Namespace) -> int:
         raise InputError(f"unknown scenario '{unknown[0]}': one of {', '.join(SCENARIOS)}")
     _quiet()
     flight = fusion_sim.simulate(seed=args.seed)
+    if not 0 <= args.window[0] < args.window[1]:
+        raise InputError("--window FROM TO: 0 <= FROM < TO (seconds of the flight)")
     scores = run_scenarios(flight, args.names or list(SCENARIOS), args.seed,
-                           filtered=not args.unfiltered)
+                           tuple(args.window), filtered=not args.unfiltered)
     _print_scores(scores, args.json)
     return 0
 
