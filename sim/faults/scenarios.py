@@ -9,6 +9,7 @@ is whether the service and the fusion believe them.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -176,6 +177,31 @@ def landed_while_flying(flight, rng, window):
     return to_stream(flight, items, window, len(changed))
 
 
+STARVED_READ_S = 1.0  # a starved companion's loop reads the link this seldom
+STARVED_FRAME_EVERY = 30  # its tracker finishes one frame in this many (1 fps at 30 fps)
+STARVED_DELAY_S = 1.0  # that long after the frame's capture
+
+
+def cpu_starved(flight, rng, window):
+    """The companion's CPU starved during the window (one core shared with six busy loops):
+    its loop reads the link once a second (the packets come in bursts, in order) and its
+    tracker finishes one frame in STARVED_FRAME_EVERY, STARVED_DELAY_S after its capture."""
+    start, end = (w + fusion_sim.BOOT_OFFSET for w in window)
+    packets = [Packet(min(float(np.ceil(p.arrival / STARVED_READ_S)) * STARVED_READ_S, end)
+                      if start <= p.arrival < end else p.arrival, p.data)
+               for p in clean_packets(flight)]
+    frames, starved = [], 0
+    for ready, result, t_capture in flight.frames:
+        if start <= t_capture < end:
+            starved += 1
+            if starved % STARVED_FRAME_EVERY:
+                continue
+            ready = t_capture + STARVED_DELAY_S
+        frames.append((ready, result, t_capture))
+    return Stream(dataclasses.replace(flight, frames=sorted(frames, key=lambda f: f[0])),
+                  sorted(packets, key=lambda p: p.arrival), window, 0)
+
+
 def garbage(flight, rng, window):
     """1 MB of random bytes spread over the window, between the packets."""
     items = clean_items(flight)
@@ -286,6 +312,7 @@ SCENARIOS: dict[str, Callable] = {
     "false-reboot-10s-back": odd_stamps(-10.0),
     "false-reboot-60s-ahead": odd_stamps(60.0),
     "landed-while-flying": landed_while_flying,
+    "cpu-starved": cpu_starved,
     "garbage-1mb": garbage,
     "link-loss-5s": link_loss,
     "reboot": reboot,
