@@ -50,7 +50,40 @@ def detect_fast(image: np.ndarray, threshold: int) -> tuple[np.ndarray, np.ndarr
     if not kps:
         return np.zeros((0, 2)), np.zeros(0)
     pts = cv2.KeyPoint_convert(kps).astype(np.float64)
-    return pts, np.fromiter((k.response for k in kps), np.float64, len(kps))
+    return pts, fast_scores(image, pts)
+
+
+# the FAST circle of radius 3, (dx, dy) in order around it, and the arc a corner needs
+FAST_CIRCLE = np.array([(0, -3), (1, -3), (2, -2), (3, -1), (3, 0), (3, 1), (2, 2), (1, 3),
+                        (0, 3), (-1, 3), (-2, 2), (-3, 1), (-3, 0), (-3, -1), (-2, -2),
+                        (-1, -3)], dtype=np.int64)
+FAST_ARC = 9
+
+
+@numba.njit(cache=True, nogil=True)
+def fast_scores(image, pts):
+    """FAST scores (OpenCV's responses) of corners pts (N, 2: integer x, y, 3 pixels inside):
+    the largest threshold at which each would still be a corner, minus 1, i.e. over the arcs
+    of FAST_ARC contiguous circle pixels, the largest of an arc's smallest difference from
+    the centre (all brighter, or all darker), minus 1. OpenCV gives its responses only one
+    Python attribute access at a time, which cost more than finding the corners (issue 31)."""
+    ring = np.empty(32, dtype=np.int64)
+    out = np.empty(pts.shape[0])
+    for i in range(pts.shape[0]):
+        x, y = int(pts[i, 0]), int(pts[i, 1])
+        v = np.int64(image[y, x])
+        for k in range(16):
+            ring[k] = np.int64(image[y + FAST_CIRCLE[k, 1], x + FAST_CIRCLE[k, 0]]) - v
+            ring[k + 16] = ring[k]
+        best = 0
+        for start in range(16):
+            lo = hi = ring[start]
+            for j in range(1, FAST_ARC):
+                lo = min(lo, ring[start + j])
+                hi = max(hi, ring[start + j])
+            best = max(best, lo, -hi)  # all brighter by lo, or all darker by -hi
+        out[i] = best - 1
+    return out
 
 
 class Corners:
@@ -58,32 +91,24 @@ class Corners:
     row starts (levels below min_level are left empty).
 
     Columns: `x`, `y` (level pixels), `level`, `score`, `xn`, `yn` (undistorted normalised
-    image-plane coordinates), `level_start` (L+1), `row_start[l]` (height_l + 1 entries).
+    image-plane coordinates, NaN until a search first needs them: corner_normalised),
+    `level_start` (L+1), `row_start[l]` (height_l + 1 entries).
     """
 
-    def __init__(self, pyramid: Pyramid, camera: CameraModel,
-                 detections: list[tuple[np.ndarray, np.ndarray] | None]):
-        xs, ys, lv, sc = [], [], [], []
-        for level, found in enumerate(detections):
-            pts, resp = found if found is not None else (np.zeros((0, 2)), np.zeros(0))
-            order = np.lexsort((pts[:, 0], pts[:, 1]))
-            xs.append(pts[order, 0])
-            ys.append(pts[order, 1])
-            sc.append(resp[order])
-            lv.append(np.full(len(order), level, dtype=np.int64))
-        self.x = np.concatenate(xs)
-        self.y = np.concatenate(ys)
-        self.score = np.concatenate(sc)
-        self.level = np.concatenate(lv)
-        counts = np.array([len(a) for a in xs], dtype=np.int64)
+    def __init__(self, pyramid: Pyramid, detections: list[tuple[np.ndarray, np.ndarray] | None]):
+        found = [d for d in detections if d is not None]
+        counts = np.array([0 if d is None else len(d[1]) for d in detections], dtype=np.int64)
+        pts = np.concatenate([d[0] for d in found]) if found else np.zeros((0, 2))
+        level = np.repeat(np.arange(len(detections), dtype=np.int64), counts)
+        order = np.lexsort((pts[:, 0], pts[:, 1], level))
+        self.x = pts[order, 0]
+        self.y = pts[order, 1]
+        self.score = (np.concatenate([d[1] for d in found]) if found else np.zeros(0))[order]
+        self.level = level[order]
         self.level_start = np.concatenate(([0], np.cumsum(counts))).astype(np.int64)
-        max_h = int(pyramid.heights[0]) + 1
-        self.row_start = np.zeros((len(xs), max_h + 1), dtype=np.int64)
-        for level in range(len(xs)):
-            lo, hi = self.level_start[level], self.level_start[level + 1]
-            rows = self.y[lo:hi].astype(np.int64)
-            self.row_start[level] = lo + np.searchsorted(rows, np.arange(max_h + 1), side="left")
-        self.xn, self.yn = _normalised(camera.params, self.x, self.y, self.level)
+        self.row_start = _row_starts(self.y, self.level_start, int(pyramid.heights[0]) + 1)
+        self.xn = np.full(len(self.x), np.nan)
+        self.yn = np.full(len(self.x), np.nan)
         # what the matching kernels take (vo.matcher.match_epipolar)
         self.tables = (self.x, self.y, self.xn, self.yn, self.row_start)
 
@@ -94,17 +119,30 @@ class Corners:
 
 
 @numba.njit(cache=True, nogil=True)
-def _normalised(params, x, y, level):
-    """Undistorted normalised-plane coordinates of level pixels."""
-    n = x.shape[0]
-    xn = np.empty(n)
-    yn = np.empty(n)
-    for i in range(n):
-        bx, by, bz = unproject_pixel(params, from_level(x[i], level[i]),
-                                     from_level(y[i], level[i]))
+def _row_starts(y, level_start, max_h):
+    """Per level, the index of its first corner in each row 0..max_h (rows sorted per level;
+    entries past a level's last corner point at the next level's first)."""
+    n_levels = level_start.shape[0] - 1
+    out = np.empty((n_levels, max_h + 1), dtype=np.int64)
+    for level in range(n_levels):
+        i, hi = level_start[level], level_start[level + 1]
+        for row in range(max_h + 1):
+            while i < hi and int(y[i]) < row:
+                i += 1
+            out[level, row] = i
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def corner_normalised(params, tables, i, level):
+    """Undistorted normalised image-plane coordinates of corner i (at `level`) of a Corners'
+    tables, computed on first use (a search looks at a few of a frame's corners)."""
+    x, y, xn, yn, _ = tables
+    if np.isnan(xn[i]):
+        bx, by, bz = unproject_pixel(params, from_level(x[i], level), from_level(y[i], level))
         xn[i] = bx / bz
         yn[i] = by / bz
-    return xn, yn
+    return xn[i], yn[i]
 
 
 class Frame:
@@ -164,7 +202,7 @@ class Frame:
                 if self._detections[level] is None:
                     self._detections[level] = detect_fast(self.pyr.images[level], threshold)
             wanted = [d if lv >= min_level else None for lv, d in enumerate(self._detections)]
-            self._corners[min_level] = Corners(self.pyr, self.camera, wanted)
+            self._corners[min_level] = Corners(self.pyr, wanted)
         return self._corners[min_level]
 
     def set_features(self, point: np.ndarray, px: np.ndarray, level: np.ndarray) -> None:

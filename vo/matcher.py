@@ -11,6 +11,7 @@ import numba
 import numpy as np
 
 from calib.camera import project_point, unproject_pixel
+from vo.frame import corner_normalised
 from vo.orb import NONE, UNKNOWN, VALID, hamming
 from vo.patch import (
     BORDER_PATCH,
@@ -157,7 +158,7 @@ def match_epipolar(params, layout, ref_flat, ref_obs, rho, sigma, T_cur_ref, cur
     ones are marked as needed and the search fails as pending)."""
     off, widths, heights = layout
     ref_u, ref_v, ref_level, f_ref = ref_obs
-    cx, cy, cxn, cyn, c_row_start = corners
+    cx, cy, _, _, c_row_start = corners
     min_level, max_level, margin_px, threshold, iterations = search
     if not (rho > 0.0 and sigma > 0.0 and np.isfinite(rho + sigma)):
         return 0.0, 0.0, 0, False
@@ -227,7 +228,8 @@ def match_epipolar(params, layout, ref_flat, ref_obs, rho, sigma, T_cur_ref, cur
                 y = cy[i]
                 if not inside(x, y, w, h, HALF + 1):
                     continue
-                if _segment_distance(cxn[i], cyn[i], ax, ay, bx, by) > tol:
+                xn, yn = corner_normalised(params, corners, i, level)
+                if _segment_distance(xn, yn, ax, ay, bx, by) > tol:
                     continue
                 if not use_orb:
                     score = zmssd(patch, cur_flat, off[level], w, int(x), int(y))

@@ -109,9 +109,11 @@ def tukey_scale(residuals):
 @numba.njit(cache=True, nogil=True)
 def _normal_equations(res, rows, jac, c):
     """H, b, mean Tukey cost (cut-off c; inf for squared residuals) and pixel count of the
-    residuals `res` of patches `rows` (_patch_residuals)."""
-    H = np.zeros((6, 6))
-    b = np.zeros(6)
+    residuals `res` of patches `rows` (_patch_residuals). The sums are kept in scalars (in
+    registers: the hot loop of the alignment), each in the order of the pixels."""
+    b0 = b1 = b2 = b3 = b4 = b5 = 0.0
+    h00 = h01 = h02 = h03 = h04 = h05 = h11 = h12 = h13 = h14 = h15 = 0.0
+    h22 = h23 = h24 = h25 = h33 = h34 = h35 = h44 = h45 = h55 = 0.0
     cost = 0.0
     robust = np.isfinite(c)
     for j in range(rows.shape[0]):
@@ -128,15 +130,42 @@ def _normal_equations(res, rows, jac, c):
                 cost += c * c / 6.0 * (1.0 - (1.0 - x * x) ** 3)
             else:
                 cost += e * e
-            for a in range(6):
-                b[a] += weight * jac[i, k, a] * e
-                for q in range(a, 6):
-                    H[a, q] += weight * jac[i, k, a] * jac[i, k, q]
-    for a in range(6):
-        for q in range(a):
-            H[a, q] = H[q, a]
+            j0, j1, j2, j3, j4, j5 = jac[i, k, 0], jac[i, k, 1], jac[i, k, 2], jac[i, k, 3], \
+                jac[i, k, 4], jac[i, k, 5]
+            w0, w1, w2 = weight * j0, weight * j1, weight * j2
+            w3, w4, w5 = weight * j3, weight * j4, weight * j5
+            b0 += w0 * e
+            b1 += w1 * e
+            b2 += w2 * e
+            b3 += w3 * e
+            b4 += w4 * e
+            b5 += w5 * e
+            h00 += w0 * j0
+            h01 += w0 * j1
+            h02 += w0 * j2
+            h03 += w0 * j3
+            h04 += w0 * j4
+            h05 += w0 * j5
+            h11 += w1 * j1
+            h12 += w1 * j2
+            h13 += w1 * j3
+            h14 += w1 * j4
+            h15 += w1 * j5
+            h22 += w2 * j2
+            h23 += w2 * j3
+            h24 += w2 * j4
+            h25 += w2 * j5
+            h33 += w3 * j3
+            h34 += w3 * j4
+            h35 += w3 * j5
+            h44 += w4 * j4
+            h45 += w4 * j5
+            h55 += w5 * j5
+    H = np.array([[h00, h01, h02, h03, h04, h05], [h01, h11, h12, h13, h14, h15],
+                  [h02, h12, h22, h23, h24, h25], [h03, h13, h23, h33, h34, h35],
+                  [h04, h14, h24, h34, h44, h45], [h05, h15, h25, h35, h45, h55]])
     count = rows.shape[0] * N4
-    return H, b, cost / max(count, 1), count
+    return H, np.array([b0, b1, b2, b3, b4, b5]), cost / max(count, 1), count
 
 
 @numba.njit(cache=True, nogil=True)
