@@ -21,15 +21,21 @@ class Pyramid:
     """Image pyramid with `levels` levels packed into one uint8 buffer."""
 
     def __init__(self, image: np.ndarray, levels: int):
-        imgs = [np.ascontiguousarray(image)]
+        h, w = image.shape
+        sizes = [(w, h)]
         for _ in range(levels - 1):
-            imgs.append(cv2.pyrDown(imgs[-1]))
-        self.images = imgs
-        self.widths = np.array([im.shape[1] for im in imgs], dtype=np.int64)
-        self.heights = np.array([im.shape[0] for im in imgs], dtype=np.int64)
-        sizes = self.widths * self.heights
-        self.offsets = np.concatenate(([0], np.cumsum(sizes)[:-1])).astype(np.int64)
-        self.flat = np.concatenate([im.ravel() for im in imgs])
+            sizes.append(((sizes[-1][0] + 1) // 2, (sizes[-1][1] + 1) // 2))  # pyrDown's size
+        self.widths = np.array([s[0] for s in sizes], dtype=np.int64)
+        self.heights = np.array([s[1] for s in sizes], dtype=np.int64)
+        areas = self.widths * self.heights
+        self.offsets = np.concatenate(([0], np.cumsum(areas)[:-1])).astype(np.int64)
+        # each level is made in its place in the flat buffer (no copies of the levels)
+        self.flat = np.empty(int(areas.sum()), dtype=np.uint8)
+        self.images = [self.flat[o:o + a].reshape(sh, sw)
+                       for o, a, (sw, sh) in zip(self.offsets, areas, sizes, strict=True)]
+        self.images[0][:] = image
+        for level in range(1, levels):
+            cv2.pyrDown(self.images[level - 1], dst=self.images[level])
         # what kernels take to find a level in `flat` (the same for every frame of a camera)
         self.layout = (self.offsets, self.widths, self.heights)
 
@@ -161,7 +167,7 @@ class Frame:
         self.orb = CornerDescriptors(self.pyr.images)
         self.T_c_w = np.eye(4)
         self._detections: list[tuple[np.ndarray, np.ndarray] | None] = [None] * levels
-        self._corners: dict[int, Corners] = {}
+        self._corners: dict[tuple[int, int], Corners] = {}
         self.feat_point = np.zeros(0, dtype=np.int64)
         self.feat_px = np.zeros((0, 2))
         self.feat_level = np.zeros(0, dtype=np.int64)
@@ -193,17 +199,22 @@ class Frame:
         """Camera centre in the world."""
         return -self.T_c_w[:3, :3].T @ self.T_c_w[:3, 3]
 
-    def corners(self, threshold: int, min_level: int = 0) -> Corners:
-        """FAST corners of the levels from min_level up (each level detected on first use)."""
-        if 0 in self._corners:
-            return self._corners[0]
-        if min_level not in self._corners:
-            for level in range(min_level, len(self._detections)):
+    def corners(self, threshold: int, min_level: int = 0, max_level: int | None = None
+                ) -> Corners:
+        """FAST corners of the levels min_level..max_level (default: the top one), each level
+        detected on first use; the corners of all levels once they have been asked for."""
+        top = len(self._detections) - 1
+        key = (min_level, top if max_level is None else max_level)
+        if (0, top) in self._corners:
+            return self._corners[(0, top)]
+        if key not in self._corners:
+            for level in range(key[0], key[1] + 1):
                 if self._detections[level] is None:
                     self._detections[level] = detect_fast(self.pyr.images[level], threshold)
-            wanted = [d if lv >= min_level else None for lv, d in enumerate(self._detections)]
-            self._corners[min_level] = Corners(self.pyr, wanted)
-        return self._corners[min_level]
+            wanted = [d if key[0] <= lv <= key[1] else None
+                      for lv, d in enumerate(self._detections)]
+            self._corners[key] = Corners(self.pyr, wanted)
+        return self._corners[key]
 
     def set_features(self, point: np.ndarray, px: np.ndarray, level: np.ndarray) -> None:
         """Record the map points matched in this frame and where."""

@@ -59,7 +59,8 @@ class MapMatcher:
         cfg = self.config
         if cfg.track_candidates or cfg.track_search_fallback or cfg.matcher == "orb":
             t0 = time.perf_counter()
-            frame.corners(cfg.fast_threshold, cfg.track_corner_level)  # searches among corners
+            # searches among corners
+            frame.corners(cfg.fast_threshold, cfg.track_corner_level, cfg.match_max_level)
             timings["corners"] = ms_since(t0)
         t0 = time.perf_counter()
         ids, uv, levels, n_visible, n_attempts, attempted = self._reproject(frame)

@@ -51,6 +51,28 @@ def affine_cur_ref(params, T_cur_ref, f_ref, depth, u_ref, v_ref, ref_level):
 
 
 @numba.njit(cache=True, nogil=True)
+def inverse2(A):
+    """The inverse of a non-singular 2x2 matrix as LAPACK computes it (getrf with partial
+    pivoting, then getri), so it equals np.linalg.inv(A) to the bit without that call's
+    overhead (a match computes one per point)."""
+    a00, a01, a10, a11 = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
+    swap = abs(a10) > abs(a00)
+    if swap:
+        a00, a01, a10, a11 = a10, a11, a00, a01
+    lower = a10 * (1.0 / a00)
+    i00 = 1.0 / a00
+    i11 = 1.0 / (a11 - lower * a01)
+    i01 = (a01 * i00) * -i11
+    out = np.empty((2, 2))
+    c0, c1 = (1, 0) if swap else (0, 1)
+    out[0, c0] = i00 - i01 * lower
+    out[0, c1] = i01
+    out[1, c0] = 0.0 - i11 * lower
+    out[1, c1] = i11
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
 def search_level(A, max_level):
     """Pyramid level where the warped patch is closest to its reference size."""
     det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
@@ -117,7 +139,7 @@ def match_direct(params, layout, ref_flat, ref_obs, depth, T_cur_ref, cur_flat, 
     if abs(det) < 1e-6:
         return u, v, 0, False
     level = search_level(A, max_level)
-    A_ref_cur = np.linalg.inv(A)
+    A_ref_cur = inverse2(A)
     patch = np.empty((BORDER_PATCH, BORDER_PATCH))
     if not warp_patch(ref_flat, off[ref_level], w[ref_level], h[ref_level], A_ref_cur, ref_u,
                       ref_v, ref_level, level, patch):
@@ -189,7 +211,7 @@ def match_epipolar(params, layout, ref_flat, ref_obs, rho, sigma, T_cur_ref, cur
     det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
     if abs(det) < 1e-6:
         return 0.0, 0.0, 0, False
-    A_ref_cur = np.linalg.inv(A)
+    A_ref_cur = inverse2(A)
     use_orb = orb[0] >= 0
     # ORB: corners of level l are compared with the point's descriptor at the reference
     # level that shows the same scale

@@ -115,6 +115,9 @@ def match_in_cells(params, T_c_w, cands, keyframes, layout, cur_flat, corners, s
     out_uv = np.empty((n, 2))
     out_level = np.empty(n, dtype=np.int64)
     use_orb = orb[0] >= 0
+    # T_cur_ref per keyframe slot, computed on its first use
+    T_slot = np.empty((kf_T_c_w.shape[0], 4, 4))
+    have = np.zeros(kf_T_c_w.shape[0], dtype=np.bool_)
     m = 0
     for k in order:
         if m >= max_matches:
@@ -123,7 +126,10 @@ def match_in_cells(params, T_c_w, cands, keyframes, layout, cur_flat, corners, s
         if done[c] or tried[k] or waiting[c] >= lookahead:
             continue
         s = host[k]
-        T_cur_ref = T_c_w @ inv_se3(kf_T_c_w[s])
+        if not have[s]:
+            T_slot[s] = T_c_w @ inv_se3(kf_T_c_w[s])
+            have[s] = True
+        T_cur_ref = T_slot[s]
         ref_obs = (huv[k, 0], huv[k, 1], hlevel[k], f[k])
         pending = orb[8][0]
         u = v = 0.0
@@ -199,7 +205,7 @@ class Reprojector:
         corners = _NO_CORNERS
         c = None
         if cands[-2].any() or cfg.track_search_fallback or use_orb:
-            c = frame.corners(cfg.fast_threshold, cfg.track_corner_level)
+            c = frame.corners(cfg.fast_threshold, cfg.track_corner_level, cfg.match_max_level)
             corners = c.tables
         pts = map_.points
         if use_orb:
