@@ -65,14 +65,17 @@ def closest_views(params, idx, pos_w, hosts, host_only, obs, kf_T_c_w, cur_centr
                 o = order[start[p] + j]
                 s, u, v, lv = obs_kf[o], obs_uv[o, 0], obs_uv[o, 1], obs_level[o]
             T = kf_T_c_w[s]
-            R = np.ascontiguousarray(T[:3, :3])  # a contiguous operand for BLAS
-            X = R @ P + T[:3, 3]
-            r = X @ R  # ray from the keyframe centre to P, in the world
-            c = (r @ rc) / max(np.sqrt(r @ r), 1e-12)
+            X0, X1, X2 = transform(T, P[0], P[1], P[2])
+            # ray from the keyframe centre to P, in the world
+            r0 = X0 * T[0, 0] + X1 * T[1, 0] + X2 * T[2, 0]
+            r1 = X0 * T[0, 1] + X1 * T[1, 1] + X2 * T[2, 1]
+            r2 = X0 * T[0, 2] + X1 * T[1, 2] + X2 * T[2, 2]
+            c = (r0 * rc[0] + r1 * rc[1] + r2 * rc[2]) / max(
+                np.sqrt(r0 * r0 + r1 * r1 + r2 * r2), 1e-12)
             if c > best:
                 best = c
                 slot[k], uv[k, 0], uv[k, 1], level[k] = s, u, v, lv
-                depth[k] = np.sqrt(X @ X)
+                depth[k] = np.sqrt(X0 * X0 + X1 * X1 + X2 * X2)
         f[k, 0], f[k, 1], f[k, 2] = unproject_pixel(params, uv[k, 0], uv[k, 1])
     return slot, uv, level, f, depth
 
