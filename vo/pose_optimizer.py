@@ -132,11 +132,17 @@ def pose_covariance(H: np.ndarray, sigma: float, T_w_c: np.ndarray) -> np.ndarra
     the world origin (a drone at 6 m over a map started at 1.5 m) the rotation's share of the
     position error is what matters, so it is folded in here."""
     try:
-        cov_c = np.linalg.inv(H) * sigma * sigma
+        cov = _covariance(np.ascontiguousarray(H, dtype=np.float64), float(sigma),
+                          np.ascontiguousarray(T_w_c, dtype=np.float64))
     except np.linalg.LinAlgError:
         return None
-    if not np.all(np.isfinite(cov_c)):
-        return None
+    return cov if np.all(np.isfinite(cov)) else None
+
+
+@numba.njit(cache=True, nogil=True)
+def _covariance(H, sigma, T_w_c):
+    """pose_covariance's matrices (non-finite where H is near singular)."""
+    cov_c = np.linalg.inv(H) * sigma * sigma
     J = adjoint(T_w_c)  # camera-frame twist -> left perturbation of T_w_c
     J[:3] -= skew(np.ascontiguousarray(T_w_c[:3, 3])) @ J[3:]  # -> (position, rotation)
     cov = J @ cov_c @ J.T

@@ -97,9 +97,10 @@ def plane_jacobian(X, Y, Z, J):
     J[1, 5] = x
 
 
-def adjoint(T: np.ndarray) -> np.ndarray:
+@numba.njit(cache=True, nogil=True)
+def adjoint(T):
     """6x6 adjoint of T for twists (v, w): exp(Ad xi) T = T exp(xi)."""
-    R = T[:3, :3]
+    R = np.ascontiguousarray(T[:3, :3])
     out = np.zeros((6, 6))
     out[:3, :3] = R
     out[:3, 3:] = skew(np.ascontiguousarray(T[:3, 3])) @ R
@@ -122,9 +123,12 @@ def rotation_angle_deg(R: np.ndarray) -> float:
     return float(np.degrees(np.arccos(c)))
 
 
-def orthonormalized(T: np.ndarray) -> np.ndarray:
+@numba.njit(cache=True, nogil=True)
+def orthonormalized(T):
     """T with its rotation block projected back onto SO(3) (removes round-off drift)."""
-    U, _, Vt = np.linalg.svd(T[:3, :3])
+    U, _, Vt = np.linalg.svd(np.ascontiguousarray(T[:3, :3]))
+    D = np.eye(3)
+    D[2, 2] = np.linalg.det(U @ Vt)
     out = T.copy()
-    out[:3, :3] = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    out[:3, :3] = U @ D @ Vt
     return out

@@ -128,21 +128,23 @@ def _normal_equations(res, seen, jac, c, wj):
     spreads over vector lanes: the alignment's hot loop."""
     n = res.shape[0]
     cost = 0.0
+    weight = wj[0]  # the weights first, then each row times its Jacobian row in its place
     if np.isfinite(c):
         k6 = c * c / 6.0
         for p in range(n):
             x2 = (res[p] / c) ** 2
             inlier = x2 < 1.0
             t = 1.0 - x2
-            weight = t * t if inlier else 0.0
+            weight[p] = seen[p] * (t * t if inlier else 0.0)
             cost += seen[p] * (k6 * (1.0 - t * t * t) if inlier else k6)
-            for a in range(6):
-                wj[a, p] = seen[p] * weight * jac[a, p]
     else:
         for p in range(n):
             cost += seen[p] * res[p] * res[p]
-            for a in range(6):
-                wj[a, p] = seen[p] * jac[a, p]
+            weight[p] = seen[p]
+    for a in range(5, -1, -1):
+        row = wj[a]
+        for p in range(n):
+            row[p] = weight[p] * jac[a, p]
     H = np.empty((6, 6))
     b = np.empty(6)
     for a in range(6):
