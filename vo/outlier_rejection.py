@@ -14,7 +14,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from vo.se3 import exp_se3, plane_jacobian, transform
+from vo.normal_equations import solve_spd
+from vo.se3 import compose, exp_se3, plane_jacobian, transform
 
 SUBSET = 5
 HYPOTHESIS_ITERATIONS = 5
@@ -57,11 +58,10 @@ def fit_subset(pos_w, obs, scale, subset, T_prior, iterations):
                 b[a] += s * (J[0, a] * ex + J[1, a] * ey)
                 for q in range(6):
                     H[a, q] += s * s * (J[0, a] * J[0, q] + J[1, a] * J[1, q])
-        try:
-            xi = np.linalg.solve(H, b)
-        except Exception:  # a degenerate subset (numba catches no narrower class): no fit
+        det, xi = solve_spd(H, b)
+        if det == 0.0:  # a degenerate subset: no fit
             break
-        T = exp_se3(xi) @ T
+        T = compose(exp_se3(xi), T)
         if np.sqrt(xi @ xi) < 1e-12:
             break
     return T

@@ -60,14 +60,21 @@ def warp_patch(flat, off, w, h, A_ref_cur, u_ref, v_ref, ref_level, search_level
     half = BORDER_PATCH // 2
     cx = to_level(u_ref, ref_level)
     cy = to_level(v_ref, ref_level)
-    for r in range(BORDER_PATCH):
-        for c in range(BORDER_PATCH):
+    # an affine warp's patch lies within its four corners: check those, then sample all
+    for r in (0, BORDER_PATCH - 1):
+        for c in (0, BORDER_PATCH - 1):
             dx = (c - half) * step
             dy = (r - half) * step
             x = (A_ref_cur[0, 0] * dx + A_ref_cur[0, 1] * dy) * inv_ref + cx
             y = (A_ref_cur[1, 0] * dx + A_ref_cur[1, 1] * dy) * inv_ref + cy
             if not inside(x, y, w, h, 0):
                 return False
+    for r in range(BORDER_PATCH):
+        for c in range(BORDER_PATCH):
+            dx = (c - half) * step
+            dy = (r - half) * step
+            x = (A_ref_cur[0, 0] * dx + A_ref_cur[0, 1] * dy) * inv_ref + cx
+            y = (A_ref_cur[1, 0] * dx + A_ref_cur[1, 1] * dy) * inv_ref + cy
             out[r, c] = sample(flat, off, w, x, y)
     return True
 

@@ -12,7 +12,7 @@ from vo.frame import Frame
 from vo.map import Map
 from vo.matcher import match_direct, match_epipolar
 from vo.orb import OrbQuery, query
-from vo.se3 import inv_se3, transform
+from vo.se3 import compose, inv_se3, transform
 
 
 @numba.njit(cache=True, nogil=True)
@@ -130,7 +130,7 @@ def match_in_cells(params, T_c_w, cands, keyframes, layout, cur_flat, corners, s
             continue
         s = host[k]
         if not have[s]:
-            T_slot[s] = T_c_w @ inv_se3(kf_T_c_w[s])
+            T_slot[s] = compose(T_c_w, inv_se3(kf_T_c_w[s]))
             have[s] = True
         T_cur_ref = T_slot[s]
         ref_obs = (huv[k, 0], huv[k, 1], hlevel[k], f[k])

@@ -15,9 +15,10 @@ import numba
 import numpy as np
 
 from calib.camera import project_point
+from vo.normal_equations import solve_spd
 from vo.patch import inside, sample, to_level
 from vo.pose_optimizer import MAD_TO_SIGMA, TUKEY_C
-from vo.se3 import exp_se3, plane_jacobian, transform
+from vo.se3 import compose, exp_se3, plane_jacobian, transform
 
 HALF4 = 2
 N4 = 16
@@ -176,8 +177,10 @@ def align_level(params, image, level, patches, jac, valid, xyz, T_cur_ref, itera
     for _ in range(iterations):
         if count < 6 * N4:
             break
-        xi = np.linalg.solve(H + 1e-9 * np.eye(6), b)
-        T_new = T @ exp_se3(-xi)
+        det, xi = solve_spd(H + 1e-9 * np.eye(6), b)
+        if det == 0.0:
+            break
+        T_new = compose(T, exp_se3(-xi))
         count_new = _patch_residuals(params, image, level, patches, valid, xyz, T_new, res_new,
                                      seen)
         H_new, b_new, cost_new = _normal_equations(res_new, seen, jac, c, wj)
