@@ -105,14 +105,10 @@ class Corners:
         found = [d for d in detections if d is not None]
         counts = np.array([0 if d is None else len(d[1]) for d in detections], dtype=np.int64)
         pts = np.concatenate([d[0] for d in found]) if found else np.zeros((0, 2))
-        level = np.repeat(np.arange(len(detections), dtype=np.int64), counts)
-        order = np.lexsort((pts[:, 0], pts[:, 1], level))
-        self.x = pts[order, 0]
-        self.y = pts[order, 1]
-        self.score = (np.concatenate([d[1] for d in found]) if found else np.zeros(0))[order]
-        self.level = level[order]
+        scores = np.concatenate([d[1] for d in found]) if found else np.zeros(0)
         self.level_start = np.concatenate(([0], np.cumsum(counts))).astype(np.int64)
-        self.row_start = _row_starts(self.y, self.level_start, int(pyramid.heights[0]) + 1)
+        self.x, self.y, self.score, self.level, self.row_start = _sorted_corners(
+            pts, scores, self.level_start, int(pyramid.widths[0]), int(pyramid.heights[0]) + 1)
         self.xn = np.full(len(self.x), np.nan)
         self.yn = np.full(len(self.x), np.nan)
         # what the matching kernels take (vo.matcher.match_epipolar)
@@ -125,18 +121,31 @@ class Corners:
 
 
 @numba.njit(cache=True, nogil=True)
-def _row_starts(y, level_start, max_h):
-    """Per level, the index of its first corner in each row 0..max_h (rows sorted per level;
-    entries past a level's last corner point at the next level's first)."""
+def _sorted_corners(pts, scores, level_start, width, max_h):
+    """Corners (x, y, score, level) sorted by (level, row, column) (OpenCV finds them in that
+    order: then nothing moves), and per level the index of its first corner in each row
+    0..max_h (entries past a level's last corner point at the next level's first)."""
     n_levels = level_start.shape[0] - 1
-    out = np.empty((n_levels, max_h + 1), dtype=np.int64)
-    for level in range(n_levels):
-        i, hi = level_start[level], level_start[level + 1]
+    level = np.empty(pts.shape[0], dtype=np.int64)
+    key = np.empty(pts.shape[0], dtype=np.int64)
+    for lv in range(n_levels):
+        for i in range(level_start[lv], level_start[lv + 1]):
+            level[i] = lv
+            key[i] = (lv * (max_h + 1) + int(pts[i, 1])) * (width + 1) + int(pts[i, 0])
+    order = np.arange(pts.shape[0])
+    for i in range(1, key.shape[0]):
+        if key[i] <= key[i - 1]:
+            order = np.argsort(key, kind="mergesort")
+            break
+    x, y, score, lv_out = pts[order, 0], pts[order, 1], scores[order], level[order]
+    row_start = np.empty((n_levels, max_h + 1), dtype=np.int64)
+    for lv in range(n_levels):
+        i, hi = level_start[lv], level_start[lv + 1]
         for row in range(max_h + 1):
             while i < hi and int(y[i]) < row:
                 i += 1
-            out[level, row] = i
-    return out
+            row_start[lv, row] = i
+    return x, y, score, lv_out, row_start
 
 
 @numba.njit(cache=True, nogil=True)

@@ -217,7 +217,9 @@ def match_epipolar(params, layout, ref_flat, ref_obs, rho, sigma, T_cur_ref, cur
     # level that shows the same scale
     level_shift = int(np.round(0.5 * np.log2(abs(det))))
     pending = orb[7][0]
-    patch = np.empty((BORDER_PATCH, BORDER_PATCH))
+    # the warped reference patch of each level searched, kept for the refinement
+    patches = np.empty((max_level + 1, BORDER_PATCH, BORDER_PATCH))
+    warped = np.zeros(max_level + 1, dtype=np.bool_)
     best = orb[0] + 1.0 if use_orb else threshold * PATCH_AREA
     best_x = best_y = 0.0
     best_level = -1
@@ -230,9 +232,12 @@ def match_epipolar(params, layout, ref_flat, ref_obs, rho, sigma, T_cur_ref, cur
             if orb[2][rl] == UNKNOWN:
                 orb[3][rl] = True
                 orb[7][0] += 1
-        elif not warp_patch(ref_flat, off[ref_level], widths[ref_level], heights[ref_level],
-                            A_ref_cur, ref_u, ref_v, ref_level, level, patch):
-            continue
+        else:
+            warped[level] = warp_patch(ref_flat, off[ref_level], widths[ref_level],
+                                       heights[ref_level], A_ref_cur, ref_u, ref_v, ref_level,
+                                       level, patches[level])
+            if not warped[level]:
+                continue
         s = 2.0 ** level
         m = margin_px * s
         tol = m / focal
@@ -254,7 +259,7 @@ def match_epipolar(params, layout, ref_flat, ref_obs, rho, sigma, T_cur_ref, cur
                 if _segment_distance(xn, yn, ax, ay, bx, by) > tol:
                     continue
                 if not use_orb:
-                    score = zmssd(patch, cur_flat, off[level], w, int(x), int(y))
+                    score = zmssd(patches[level], cur_flat, off[level], w, int(x), int(y))
                 elif orb[5][i] == UNKNOWN:
                     orb[6][i] = True
                     orb[7][0] += 1
@@ -270,17 +275,19 @@ def match_epipolar(params, layout, ref_flat, ref_obs, rho, sigma, T_cur_ref, cur
         return 0.0, 0.0, 0, False
     lv = best_level
     u0, v0 = from_level(best_x, lv), from_level(best_y, lv)
-    if not warp_patch(ref_flat, off[ref_level], widths[ref_level], heights[ref_level],
-                      A_ref_cur, ref_u, ref_v, ref_level, lv, patch):
+    if not (warped[lv] or warp_patch(ref_flat, off[ref_level], widths[ref_level],
+                                     heights[ref_level], A_ref_cur, ref_u, ref_v, ref_level, lv,
+                                     patches[lv])):
         return u0, v0, lv, use_orb  # a descriptor match whose patch cannot be refined
-    ul, vl, ok = align2d(cur_flat, off[lv], widths[lv], heights[lv], patch, best_x, best_y,
+    ul, vl, ok = align2d(cur_flat, off[lv], widths[lv], heights[lv], patches[lv], best_x, best_y,
                          iterations)
     if ok and (ul - best_x) ** 2 + (vl - best_y) ** 2 <= 4.0:
         u0, v0 = from_level(ul, lv), from_level(vl, lv)
-    if lv > 0 and warp_patch(ref_flat, off[ref_level], widths[ref_level], heights[ref_level],
-                             A_ref_cur, ref_u, ref_v, ref_level, 0, patch):
+    if lv > 0 and (warped[0] or warp_patch(ref_flat, off[ref_level], widths[ref_level],
+                                           heights[ref_level], A_ref_cur, ref_u, ref_v,
+                                           ref_level, 0, patches[0])):
         # a last sub-pixel step at full resolution
-        uf, vf, ok = align2d(cur_flat, off[0], widths[0], heights[0], patch, u0, v0,
+        uf, vf, ok = align2d(cur_flat, off[0], widths[0], heights[0], patches[0], u0, v0,
                              iterations)
         if ok and (uf - u0) ** 2 + (vf - v0) ** 2 < 4.0:
             u0, v0 = uf, vf
