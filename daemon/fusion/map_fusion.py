@@ -17,7 +17,7 @@ from daemon.fusion.alignment import AlignmentGate
 from daemon.fusion.attitude import AttitudeTrack
 from daemon.fusion.config import FusionConfig
 from daemon.fusion.output import attitude_noise, inflation
-from daemon.fusion.state import ANCHOR, LOG_SCALE, POS, NavFilter, ScaleSource
+from daemon.fusion.state import ANCHOR, LOG_SCALE, POS, TIME_OFFSET, NavFilter, ScaleSource
 from vo.pose_optimizer import MAD_TO_SIGMA
 from vo.result import Quality
 
@@ -159,8 +159,11 @@ class MapFusion:
         if f.converged or not self.imu_fresh(t):
             f.motion.interrupt()  # nothing left to fit, or no IMU to fit
             return
+        floor = (self.cfg.vo_position_std_m / f.scale) ** 2  # as measurements.update_vo
         f.motion.add_frame(t, frame.p_w, f.R_nom,
-                           float(np.sqrt(np.mean(np.square(self.imu_density())))))
+                           float(np.sqrt(np.mean(np.square(self.imu_density())))),
+                           float(f.x[TIME_OFFSET]),
+                           float(np.trace(frame.cov[:3, :3])) / 3.0 + floor)
         fit = f.motion.fit()
         if att is None or fit is None or not fit[1] <= cfg.coarse_scale_std:
             return

@@ -244,6 +244,9 @@ class NavFilter:
         reckoning at the old scale is dropped, and so is the barometer's offset,
         which was fitted to it (the next reading re-references it)."""
         x, P = self.x, self.P
+        if np.sqrt(P[LOG_SCALE, LOG_SCALE]) > self.cfg.nav_scale_std:
+            self._rescale_map(p_w, R_n_b, log_scale, scale_std)
+            return
         ratio = float(np.exp(log_scale - x[LOG_SCALE]))
         m = self.R_nom @ (np.asarray(p_w, float) - self.p_w0)
         s = float(np.exp(log_scale))
@@ -266,6 +269,34 @@ class NavFilter:
         self.P = 0.5 * (P + P.T)
         x[POS] = x[ANCHOR] + s * m - R_n_b @ self.lever - offset * velocity
         x[VEL] = velocity
+        x[LOG_SCALE] = log_scale
+        self.has_baro = False
+        self.scale_source = ScaleSource.FIT
+
+    def _rescale_map(self, p_w: np.ndarray, R_n_b: np.ndarray, log_scale: float,
+                     scale_std: float) -> None:
+        """rescale() of a filter whose scale was too unsure to move the vehicle (above
+        nav_scale_std: the IMU, barometer and rangefinder carried it, metric): the vehicle
+        stays, and the map is hung from where it is at the new scale. Its anchor had followed
+        the old scale's wandering (re-anchored at it every few metres; forget_scale drops the
+        correlation): put where the map said at the new scale, a vehicle 40 m into a level
+        flight jumped 6.8 m at a claimed 1 m."""
+        x, P = self.x, self.P
+        m = self.R_nom @ (np.asarray(p_w, float) - self.p_w0)
+        s = float(np.exp(log_scale))
+        offset = float(x[TIME_OFFSET]) if self.accel is not None else 0.0
+        J = np.eye(DIM)
+        J[ANCHOR, ANCHOR] = 0.0
+        J[ANCHOR, POS] = np.eye(3)
+        J[ANCHOR, VEL] = offset * np.eye(3)
+        J[ANCHOR, TIME_OFFSET] = x[VEL] if self.accel is not None else 0.0
+        J[LOG_SCALE, LOG_SCALE] = 0.0
+        P = J @ P @ J.T
+        d = np.zeros(DIM)
+        d[ANCHOR], d[LOG_SCALE] = -s * m, 1.0
+        P += np.outer(d, d) * scale_std**2
+        self.P = 0.5 * (P + P.T)
+        x[ANCHOR] = x[POS] + R_n_b @ self.lever + offset * x[VEL] - s * m
         x[LOG_SCALE] = log_scale
         self.has_baro = False
         self.scale_source = ScaleSource.FIT
