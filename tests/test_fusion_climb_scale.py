@@ -54,11 +54,13 @@ def test_rescale_of_an_unknown_scale_hangs_the_map_from_the_vehicle() -> None:
     f = NavFilter(FusionConfig())
     f.start(0.0, 3.0)
     f.start_segment(np.zeros(3), np.eye(3), np.eye(3), 0.0)
+    f.accel = np.zeros(3)  # an IMU has been integrated
     f.x[POS] = [1.0, 2.0, -4.0]  # where dead reckoning took the vehicle
     f.x[ANCHOR] = [7.0, 0.0, 0.0]  # wherever the unknown scale's fixes left it
     f.rescale(np.array([0.0, 0.0, -2.0]), np.eye(3), np.log(SCALE), 0.03)
     assert np.allclose(f.x[POS], [1.0, 2.0, -4.0])
-    assert np.allclose(f.x[ANCHOR] + SCALE * np.array([0.0, 0.0, -2.0]), f.x[POS])
+    assert np.allclose(f.x[ANCHOR], f.x[POS] + f.lever)  # the map's p_w is the camera now
+    assert np.allclose(f.p_w0, [0.0, 0.0, -2.0])
     assert np.isclose(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]), 0.03)
     assert np.all(np.linalg.eigvalsh(f.P) > -1e-12)
 

@@ -114,7 +114,7 @@ class MapFusion:
         if m.update_vo(f, frame.p_w, frame.cov, R_n_b, factor, imu, attitude,
                        coarse):
             if np.linalg.norm(f.x[POS] - f.x[ANCHOR]) > self.cfg.reanchor_distance_m:
-                f.reanchor(frame.p_w)
+                f.reanchor(frame.p_w, R_n_b)
             if not metric:
                 self._scene_height(t, frame, R_n_b)
         elif f.rejections["vo"] >= self.cfg.reset_after_rejections and att is not None:

@@ -244,7 +244,7 @@ class NavFilter:
         reckoning at the old scale is dropped, and so is the barometer's offset,
         which was fitted to it (the next reading re-references it)."""
         x, P = self.x, self.P
-        if np.sqrt(P[LOG_SCALE, LOG_SCALE]) > self.cfg.nav_scale_std:
+        if self._imu_carries():
             self._rescale_map(p_w, R_n_b, log_scale, scale_std)
             return
         ratio = float(np.exp(log_scale - x[LOG_SCALE]))
@@ -273,33 +273,42 @@ class NavFilter:
         self.has_baro = False
         self.scale_source = ScaleSource.FIT
 
+    def _imu_carries(self) -> bool:
+        """Whether the IMU (with the barometer and rangefinder) carries the vehicle, not the
+        map: the scale too unsure to move it (above nav_scale_std) and an IMU to integrate."""
+        return (self.accel is not None
+                and np.sqrt(self.P[LOG_SCALE, LOG_SCALE]) > self.cfg.nav_scale_std)
+
     def _rescale_map(self, p_w: np.ndarray, R_n_b: np.ndarray, log_scale: float,
                      scale_std: float) -> None:
-        """rescale() of a filter whose scale was too unsure to move the vehicle (above
-        nav_scale_std: the IMU, barometer and rangefinder carried it, metric): the vehicle
-        stays, and the map is hung from where it is at the new scale. Its anchor had followed
-        the old scale's wandering (re-anchored at it every few metres; forget_scale drops the
-        correlation): put where the map said at the new scale, a vehicle 40 m into a level
-        flight jumped 6.8 m at a claimed 1 m."""
-        x, P = self.x, self.P
-        m = self.R_nom @ (np.asarray(p_w, float) - self.p_w0)
-        s = float(np.exp(log_scale))
-        offset = float(x[TIME_OFFSET]) if self.accel is not None else 0.0
+        """rescale() of a filter whose IMU carries the vehicle (_imu_carries): it stays, and
+        the map is hung from where it is, at the new scale. The anchor had followed the old
+        scale's wandering (re-anchored at it; forget_scale drops the correlation): put where
+        the map said at the new scale, a vehicle 40 m into a level flight jumped 6.8 m at a
+        claimed 1 m."""
+        self._hang_map(p_w, R_n_b)
+        P = self.P
+        P[LOG_SCALE, :] = 0.0
+        P[:, LOG_SCALE] = 0.0
+        P[LOG_SCALE, LOG_SCALE] = scale_std**2
+        self.x[LOG_SCALE] = log_scale
+        self.has_baro = False
+        self.scale_source = ScaleSource.FIT
+
+    def _hang_map(self, p_w: np.ndarray, R_n_b: np.ndarray) -> None:
+        """Make the map's point p_w the camera's position where the filter has the vehicle:
+        the anchor takes the vehicle's uncertainty, none of the scale's."""
+        x = self.x
+        offset = float(x[TIME_OFFSET])
         J = np.eye(DIM)
         J[ANCHOR, ANCHOR] = 0.0
         J[ANCHOR, POS] = np.eye(3)
         J[ANCHOR, VEL] = offset * np.eye(3)
-        J[ANCHOR, TIME_OFFSET] = x[VEL] if self.accel is not None else 0.0
-        J[LOG_SCALE, LOG_SCALE] = 0.0
-        P = J @ P @ J.T
-        d = np.zeros(DIM)
-        d[ANCHOR], d[LOG_SCALE] = -s * m, 1.0
-        P += np.outer(d, d) * scale_std**2
+        J[ANCHOR, TIME_OFFSET] = x[VEL]
+        P = J @ self.P @ J.T
         self.P = 0.5 * (P + P.T)
-        x[ANCHOR] = x[POS] + R_n_b @ self.lever + offset * x[VEL] - s * m
-        x[LOG_SCALE] = log_scale
-        self.has_baro = False
-        self.scale_source = ScaleSource.FIT
+        x[ANCHOR] = x[POS] + R_n_b @ self.lever + offset * x[VEL]
+        self.p_w0 = np.asarray(p_w, float).copy()
 
     def forget_scale(self) -> None:
         """Back to the wide prior's uncertainty: from there the EKF's linearised fixes settle
@@ -310,13 +319,19 @@ class NavFilter:
         P[:, LOG_SCALE] = 0.0
         P[LOG_SCALE, LOG_SCALE] = self.cfg.scale_prior_std**2
 
-    def reanchor(self, p_w: np.ndarray) -> None:
+    def reanchor(self, p_w: np.ndarray, R_n_b: np.ndarray) -> None:
         """Move the anchor to where the map puts the camera now (tracker position p_w), so only
         the map's drift from here on matters. The map's own chain is followed, not the filtered
         position, so no filter lag is frozen in. The anchor is the point of N the map calls
         p_w0, not where the camera truly was then: the tracker's noise at the old anchor and
         the new one cancel along the chain, so moving adds no noise (adding the frame's noise
-        at every move would make the anchor a random walk of it)."""
+        at every move would make the anchor a random walk of it). While the IMU carries the
+        vehicle, the map is hung from it instead: followed at a scale that is not known, the
+        chain took the prior's variance at every move and the anchor's std grew to 1.6e6 m
+        in 66 s (past float32 later: an ODOMETRY pymavlink could not pack)."""
+        if self._imu_carries():
+            self._hang_map(p_w, R_n_b)
+            return
         x, P = self.x, self.P
         v = self.scale * (self.R_nom @ (np.asarray(p_w, float) - self.p_w0))
         J = np.zeros((3, DIM))
