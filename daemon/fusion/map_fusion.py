@@ -162,11 +162,10 @@ class MapFusion:
         if f.converged or not self.imu_fresh(t):
             f.motion.interrupt()  # nothing left to fit, or no IMU to fit
             return
-        floor = (self.cfg.vo_position_std_m / f.scale) ** 2  # as measurements.update_vo
         f.motion.add_frame(t, frame.p_w, f.R_nom,
                            float(np.sqrt(np.mean(np.square(self.imu_density())))),
                            float(f.x[TIME_OFFSET]),
-                           float(np.trace(frame.cov[:3, :3])) / 3.0 + floor)
+                           float(np.trace(frame.cov[:3, :3])) / 3.0 + m.vo_position_floor(f))
         fit = f.motion.fit()
         if att is None or fit is None or not fit[1] <= cfg.coarse_scale_std:
             return

@@ -171,12 +171,7 @@ class NavFilter:
         self.climb = ClimbScale()
         self.motion = self._accel_scale()
         x, P = self.x, self.P
-        camera, J = self.camera(R_n_b)
-        x[ANCHOR] = camera
-        JP = J @ P
-        P[ANCHOR, :] = JP
-        P[:, ANCHOR] = JP.T
-        P[ANCHOR, ANCHOR] = JP @ J.T
+        self._hang_map(p_w, R_n_b)
         x[LOG_SCALE] = log_scale
         x[THETA] = 0.0
         if scale_std is None:
@@ -194,7 +189,6 @@ class NavFilter:
             else:
                 P[index, index] = std**2
         self.R_nom = R_n_b @ R_w_b.T
-        self.p_w0 = np.asarray(p_w, float).copy()
 
     def at_camera_time(self) -> tuple[np.ndarray, np.ndarray]:
         """The vehicle's position (N) at the camera's clock's time of the filter, and its
@@ -298,16 +292,13 @@ class NavFilter:
     def _hang_map(self, p_w: np.ndarray, R_n_b: np.ndarray) -> None:
         """Make the map's point p_w the camera's position where the filter has the vehicle:
         the anchor takes the vehicle's uncertainty, none of the scale's."""
-        x = self.x
-        offset = float(x[TIME_OFFSET])
-        J = np.eye(DIM)
-        J[ANCHOR, ANCHOR] = 0.0
-        J[ANCHOR, POS] = np.eye(3)
-        J[ANCHOR, VEL] = offset * np.eye(3)
-        J[ANCHOR, TIME_OFFSET] = x[VEL]
-        P = J @ self.P @ J.T
-        self.P = 0.5 * (P + P.T)
-        x[ANCHOR] = x[POS] + R_n_b @ self.lever + offset * x[VEL]
+        camera, J = self.camera(R_n_b)
+        P = self.P
+        JP = J @ P
+        P[ANCHOR, :] = JP
+        P[:, ANCHOR] = JP.T
+        P[ANCHOR, ANCHOR] = JP @ J.T
+        self.x[ANCHOR] = camera
         self.p_w0 = np.asarray(p_w, float).copy()
 
     def forget_scale(self) -> None:
