@@ -66,6 +66,7 @@ def open_source(cfg: CameraConfig) -> FrameSource:
 
 def _named_source(cfg: CameraConfig) -> FrameSource:
     """The source camera.source names: test pattern, RealSense, recording folder or OpenCV."""
+    from calib.camera_yaml import load_camera
     from daemon.camera import OpenCVSource, RecordingSource, TestPatternSource
     from daemon.realsense import is_realsense
     from daemon.recordings import open_recording
@@ -74,8 +75,10 @@ def _named_source(cfg: CameraConfig) -> FrameSource:
         return TestPatternSource(cfg.width or 320, cfg.height or 240, cfg.fps)
     if is_realsense(cfg.source):
         return realsense_source(cfg)
-    if Path(cfg.source).is_dir():
-        return RecordingSource(open_recording(cfg.source, cfg.fps), realtime=cfg.realtime)
+    if Path(cfg.source).is_dir():  # its depth maps are registered to camera.calibration's
+        camera = load_camera(cfg.calibration) if cfg.calibration else None
+        return RecordingSource(open_recording(cfg.source, cfg.fps, camera),
+                               realtime=cfg.realtime, depth=cfg.depth)
     return OpenCVSource(cfg.source, cfg.width, cfg.height, cfg.fps, cfg.realtime)
 
 
