@@ -284,9 +284,11 @@ class CaptureThread(threading.Thread):
 
     def __init__(self, source: FrameSource, slot: LatestSlot, backoff: tuple[float, float],
                  on_state: Callable[[Health], None] = lambda state: None,
-                 check: FrameCheck | None = None):
+                 check: FrameCheck | None = None,
+                 record: Callable[[Frame], None] | None = None):
         super().__init__(name="capture", daemon=True)
         self.source, self.slot, self.backoff = source, slot, backoff
+        self.record = record  # gets every accepted frame, also those tracking then drops
         self.on_state = on_state
         self.check = check or FrameCheck()
         self.stopping = threading.Event()
@@ -362,8 +364,10 @@ class CaptureThread(threading.Thread):
             if not self.check.check(t_source, image):
                 continue
             depth = self.check.depth(depth[0], image) if depth else None
-            if not self.slot.put(Frame(self.frames, t_source, t_capture, image, depth),
-                                 wait=not self.source.live):
+            frame = Frame(self.frames, t_source, t_capture, image, depth)
+            if self.record is not None:
+                self.record(frame)
+            if not self.slot.put(frame, wait=not self.source.live):
                 return True
             self.last_frame_t = time.monotonic()
             self.frames += 1

@@ -23,6 +23,7 @@ if TYPE_CHECKING:  # the real imports are slow and come after the signal handler
     from calib.camera import CameraModel
     from daemon.camera import FrameSource
     from daemon.config import CameraConfig, Config
+    from daemon.frame_recorder import FrameRecorder
     from daemon.frames import Frame
     from daemon.service import Service
 
@@ -128,6 +129,16 @@ def fit_camera(camera: CameraModel, width: int, height: int) -> CameraModel:
     return camera.scaled(factor)
 
 
+def frame_recorder(cfg: CameraConfig, camera: CameraModel) -> FrameRecorder | None:
+    """The recorder camera.record asks for (None: off), writing the frames' intrinsics."""
+    if not cfg.record:
+        return None
+    from daemon.frame_recorder import FrameRecorder
+
+    return FrameRecorder(Path(cfg.record), lambda width, height: fit_camera(camera, width,
+                                                                             height), cfg.depth)
+
+
 def tracker_factory(config: Config, camera: CameraModel) -> Callable[[Frame], object]:
     """Builds the tracker on the first frame (its results carry the matched map points for
     fusion); tracker options are validated now."""
@@ -199,7 +210,8 @@ def _start(args: argparse.Namespace, signals: EarlySignals, notifier: Notifier) 
     camera = camera_model(config.camera, source)
     numba_cache.prepare()
     service = Service(config, source, tracker_factory(config, camera), notifier=notifier,
-                      size_ok=lambda width, height: fit_camera(camera, width, height))
+                      size_ok=lambda width, height: fit_camera(camera, width, height),
+                      recorder=frame_recorder(config.camera, camera))
     prefer_handoffs()
     return asyncio.run(serve(service, signals, lambda: load_config(args.config)))
 

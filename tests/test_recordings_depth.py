@@ -1,10 +1,12 @@
 """Depth from a recorded folder played as the service's camera (issue 30): `sdvl run` with
 camera.source a folder and camera.depth on gets each frame's depth map from the folder's
 depth.txt (shared-data layout or TUM RGB-D as distributed), a bad depth file is counted and its
-image tracked without it, and camera.depth on a folder without depth stops the start."""
+image tracked without it, and camera.depth on a folder without depth stops the start. The
+service's recorder (camera.record) writes a flight that plays back with its depth."""
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import cv2
@@ -14,15 +16,17 @@ from daemon_helpers import BUSY_SLACK, RunningService, service_config
 from test_depth_service import DepthTracker
 
 from calib.camera import CameraModel
-from calib.camera_yaml import save_camera
+from calib.camera_yaml import load_depth_spec, save_camera
 from calib.depth_camera import DepthSpec
-from daemon.camera import RecordingSource
+from daemon.camera import RecordingSource, SequenceSource
 from daemon.config import CameraConfig
-from daemon.frames import BadDepth, UnreadableDepth
+from daemon.frame_recorder import FrameRecorder
+from daemon.frames import BadDepth, Frame, UnreadableDepth
 from daemon.recordings import open_recording
-from daemon.run_command import open_source
+from daemon.run_command import frame_recorder, open_source
 from sdvl.errors import InputError
 from sim.autopilot import SimAutopilot, configured_options
+from sim.sequence import Sequence
 
 CAMERA = CameraModel(64, 48, 50.0, 50.0, 32.0, 24.0, "none", [])
 
@@ -125,3 +129,61 @@ def test_camera_depth_on_a_folder_without_depth_is_a_one_line_start_error(tmp_pa
     message = str(err.value)
     assert "camera.depth = false" in message and "depth.txt" in message and "\n" not in message
 
+
+
+def _flight_with_depth(n: int) -> tuple[Sequence, list]:
+    """n frames whose depth maps are random metres with holes (NaN and 0); frame 2 has none,
+    frame 4's file is unreadable."""
+    rng = np.random.default_rng(8)
+    images = [rng.integers(0, 255, (48, 64), np.uint8) for _ in range(n)]
+    depths = []
+    for k in range(n):
+        depth = rng.uniform(0.3, 5.0, (48, 64)).astype(np.float32)
+        depth[rng.random((48, 64)) < 0.1] = np.nan
+        depth[:2] = 0.0
+        depths.append(None if k == 2 else depth)
+
+    def load(k: int):
+        if k == 4:
+            raise InputError("cannot read depth image (missing or corrupt)")
+        return depths[k]
+
+    sequence = Sequence("flight", CAMERA, 50.0 + np.arange(n) / 30, image_loader=images.__getitem__,
+                        depth_loader=load)
+    return sequence, [images, depths]
+
+
+def test_recorded_flight_replays_with_its_depth(tmp_path):
+    sequence, (images, depths) = _flight_with_depth(10)
+    recorder = FrameRecorder(tmp_path / "rec", lambda width, height: CAMERA, depth=True)
+    with SimAutopilot(configured_options(heartbeat_hz=5)) as sim:
+        run = RunningService(service_config(sim.url, camera={"depth": True}),
+                             source=SequenceSource(sequence, realtime=False, depth=True),
+                             recorder=recorder)
+        run.thread.join(10.0 * BUSY_SLACK)
+    assert run.exit_code == 0 and recorder.written == 10 and recorder.error is None
+    (folder,) = (tmp_path / "rec").iterdir()
+    assert recorder.folder == folder and load_depth_spec(folder / "camera.yaml").scale == 0.001
+    items = read_all(RecordingSource(open_recording(folder), realtime=False, depth=True))
+    assert [item[0] for item in items] == pytest.approx(list(sequence.timestamps), abs=1e-6)
+    assert all(np.array_equal(item[2], image) for item, image in zip(items, images, strict=True))
+    assert items[2][3] is None and items[4][3] is None  # none given, unreadable: none recorded
+    for k in (0, 1, 3, 5, 9):
+        want = np.nan_to_num(depths[k])
+        assert np.abs(items[k][3] - want).max() <= 0.0005 + 1e-6  # 1 mm units
+        assert np.array_equal(items[k][3] == 0, want == 0)
+
+
+def test_a_recorder_that_cannot_write_stops_and_says_why(tmp_path):
+    (tmp_path / "full").write_text("a file where the folder should be")
+    recorder = FrameRecorder(tmp_path / "full", lambda width, height: CAMERA, depth=False)
+    recorder.start()
+    frame = Frame(0, 1.0, 1.0, np.zeros((48, 64), np.uint8))
+    recorder.offer(frame)
+    deadline = time.monotonic() + 5.0
+    while recorder.error is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    recorder.offer(frame)  # ignored from now on
+    recorder.stop(2.0)
+    assert recorder.error and recorder.written == 0 and not recorder.is_alive()
+    assert frame_recorder(CameraConfig(), CAMERA) is None  # camera.record empty: off
