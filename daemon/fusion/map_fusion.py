@@ -104,6 +104,7 @@ class MapFusion:
             return
         metric = f.scale_source is ScaleSource.METRIC
         if not metric:  # a metric map has no scale to fit
+            self._late_range_prior(t, frame, att)
             self._climb_scale(t, frame, att)
             self._accel_scale(t, frame, att)
         factor = inflation(self.cfg, frame.quality)
@@ -130,6 +131,26 @@ class MapFusion:
             f.rejections["vo"] = 0
         if f.scale_source is ScaleSource.PRIOR:
             f.forget_scale()
+
+    def _late_range_prior(self, t: float, frame: FrameInput, att: object) -> None:
+        """A map started before the rangefinder's first reading still has the wide prior:
+        give it the scale start_segment would have given (the reading over the camera's height
+        above the points it matched), once a reading comes. The service starts tracking as soon
+        as frames come, before the autopilot streams DISTANCE_SENSOR (or while it reads below
+        its minimum range on the ground); the real-time replay's map kept the wide prior
+        until the IMU's fit in the climb."""
+        f = self.filter
+        if f.scale_source is not ScaleSource.PRIOR or att is None or not self.camera_down:
+            return
+        distance = self.readings.fresh_range(t)
+        units = self._map_height_units(frame, att.R_n_b @ frame.R_w_b.T)
+        if distance is None or units is None:
+            return
+        log.info("fusion: scale %.3g m/unit from the rangefinder's first reading (%.2f m)",
+                 distance / units, distance)
+        f.rescale(frame.p_w, att.R_n_b, float(np.log(distance / units)),
+                  self.cfg.range_scale_prior_std)
+        f.scale_source = ScaleSource.GIVEN
 
     def _climb_scale(self, t: float, frame: FrameInput, att: object) -> None:
         """Pair the tracker's height with the barometer's; while the filter does not know the
