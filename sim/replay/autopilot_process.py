@@ -68,8 +68,9 @@ class ReplayVehicle:
         self.t_first, self.t_last = float(trajectory.t[0]), float(trajectory.t[-1])
         self.clock = clock
         self.imu = imu
-        self._attitude_error: Rotation | None = None  # its mean error, for the pre-flight
         self.sensors = sensors
+        # the recorded attitude's mean error, which the pre-flight's attitude carries
+        self.attitude_error = self._mean_attitude_error() if sensors is not None else None
 
     def sequence_time(self) -> float:
         """Where in the sequence the vehicle is now (before t_first: the pre-flight)."""
@@ -96,16 +97,14 @@ class ReplayVehicle:
         state = self.inner.state(self.t_first - 0.5 * PAD_S - self.inner.t0)
         held = state["rotation"]
         state = with_recordings(state, self.t_first, None, self.sensors)
-        if self.sensors is not None:
-            if self._attitude_error is None:
-                self._attitude_error = self._mean_attitude_error()
-            state["rotation"] = self._attitude_error * held
+        if self.attitude_error is not None:
+            state["rotation"] = self.attitude_error * held
         return state
 
     def _mean_attitude_error(self) -> Rotation:
         """The recorded attitude against the true one (N), averaged over the flight's first
-        PREFLIGHT_ERRORS_S."""
-        times = np.linspace(self.t_first, self.t_first + PREFLIGHT_ERRORS_S, 50)
+        PREFLIGHT_ERRORS_S (or the whole of a shorter one)."""
+        times = np.linspace(self.t_first, min(self.t_first + PREFLIGHT_ERRORS_S, self.t_last), 50)
         truth = Rotation.concatenate([self.inner.state(t - self.inner.t0)["rotation"]
                                       for t in times])
         recorded = Rotation.from_quat(self.sensors.attitude[
