@@ -167,7 +167,7 @@ def _serve_service(sequence: Sequence, config: Config, frames: int,
     config = replace(drone_config(config, sequence),
                      camera={"source": "testpattern", "calibration": ""})
     make_tracker = tracker_factory(config, sequence.camera)
-    warm_up(make_tracker, sequence)
+    warm_up(make_tracker, sequence.camera.width, sequence.camera.height)
     flight = vehicle_trajectory(sequence.groundtruth, config, sequence.extras.get("T_ned_world"))
     # armed after a pre-flight on the ground, as `sdvl replay` flies: a disarmed autopilot
     # says it is landed, and the fusion would hold a flying vehicle still

@@ -98,15 +98,14 @@ def choose_estimator(config: Config, sequence: object, estimator: str) -> Config
     return replace(config, fusion={"enabled": fusion})
 
 
-def warm_up(make_tracker: Callable, sequence: object) -> float:
-    """Run a throwaway tracker over the tracker's warm-up frames (vo.warm_up: a synthetic pan,
-    nothing rendered or read) so compiled kernels are loaded before the clock starts (a
-    drone's service is up before it flies); returns the seconds it took."""
+def warm_up(make_tracker: Callable, width: int, height: int) -> float:
+    """Run a throwaway tracker over the tracker's warm-up frames (vo.warm_up: a synthetic pan
+    of width x height, nothing rendered or read) so compiled kernels are loaded before the
+    clock starts (a drone's service is up before it flies); returns the seconds it took."""
     from daemon.frames import Frame
     from vo.warm_up import warm_up as warm_tracker
 
     start = time.perf_counter()
-    width, height = sequence.camera.width, sequence.camera.height
     tracker = make_tracker(Frame(0, 0.0, time.monotonic(), np.zeros((height, width), np.uint8)))
     try:
         warm_tracker(tracker.process, width, height)
@@ -184,12 +183,12 @@ def _replay_with_link(sequence: object, config: Config, plan: ReplayPlan, show: 
     with tempfile.TemporaryDirectory(prefix="sdvl-replay-") as folder:
         if plan.realtime and renders_on_the_fly(sequence):
             show.note(f"replay {sequence.name}: rendering the frames first")
-            warm_sequence = sequence
+            size = sequence.camera.width, sequence.camera.height
             sequence, warmup_s = prerendered(
                 sequence, Path(folder), len(show), show.rendered,
-                alongside=lambda: warm_up(make_tracker, warm_sequence))
+                alongside=lambda: warm_up(make_tracker, *size))
         else:
-            warmup_s = warm_up(make_tracker, sequence)
+            warmup_s = warm_up(make_tracker, sequence.camera.width, sequence.camera.height)
         return _replay(sequence, config, plan, show, make_tracker, warmup_s)
 
 
