@@ -20,7 +20,7 @@ import numpy as np
 
 from daemon.camera import SequenceSource, need_depth
 from daemon.config import Config, replace
-from daemon.run_command import tracker_factory
+from daemon.run_command import tracker_factory, warm_up
 from daemon.service import Service, prefer_handoffs
 from sdvl.errors import InputError
 from sim.autopilot import SimOptions, configured_options
@@ -96,22 +96,6 @@ def choose_estimator(config: Config, sequence: object, estimator: str) -> Config
     else:
         fusion = estimator == "fusion"
     return replace(config, fusion={"enabled": fusion})
-
-
-def warm_up(make_tracker: Callable, width: int, height: int) -> float:
-    """Run a throwaway tracker over the tracker's warm-up frames (vo.warm_up: a synthetic pan
-    of width x height, nothing rendered or read) so compiled kernels are loaded before the
-    clock starts (a drone's service is up before it flies); returns the seconds it took."""
-    from daemon.frames import Frame
-    from vo.warm_up import warm_up as warm_tracker
-
-    start = time.perf_counter()
-    tracker = make_tracker(Frame(0, 0.0, time.monotonic(), np.zeros((height, width), np.uint8)))
-    try:
-        warm_tracker(tracker.process, width, height)
-    finally:
-        tracker.close()
-    return time.perf_counter() - start
 
 
 async def _serve(service: Service, source: ReplaySource, recorder: Recorder,
