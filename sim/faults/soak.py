@@ -173,7 +173,8 @@ def _serve_service(sequence: Sequence, config: Config, frames: int,
     # says it is landed, and the fusion would hold a flying vehicle still
     autopilot = AutopilotProcess(SimOptions(streams=sensor_streams("ardupilot", flight)),
                                  resampled(flight), body_imu(sequence),
-                                 sequence.extras.get("sensors"), arm=True)
+                                 sequence.extras.get("sensors"), arm=True,
+                                 imu_bias=sequence.extras.get("imu_bias"))
     try:
         config = replace(config, mavlink={"link": autopilot.url})
         source = ReplaySource(WithPreflight(FirstFrames(sequence, frames)), True, 0.0,

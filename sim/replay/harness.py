@@ -185,7 +185,8 @@ def _replay(sequence: object, config: Config, plan: ReplayPlan, show: Progress,
     frames = FirstFrames(sequence, plan.max_frames)
     drone = plan.realtime and config.fusion.enabled and flight is not None
     autopilot = AutopilotProcess(options, None if flight is None else resampled(flight),
-                                 body_imu(sequence), sequence.extras.get("sensors"), arm=drone)
+                                 body_imu(sequence), sequence.extras.get("sensors"), arm=drone,
+                                 imu_bias=sequence.extras.get("imu_bias"))
     if drone:  # it stands on the ground first, powered on, and the pilot arms
         frames = WithPreflight(frames)
         flight = held_before(flight, frames.seconds)
