@@ -60,11 +60,6 @@ class TrackerConfig:
     # the prior is not used in a frame whose image alignment turned this far from it (a wrong
     # mounting, a time error)
     rotation_prior_gate_deg: float = 3.0
-    # with the rotation prior, each frame's tilt is also pulled towards the map's tilt in the
-    # autopilot's frame (vo.rotation_prior.TiltAnchor), with this std: how far the autopilot's
-    # tilt may wander from what it was when the map started (an error budget, no real log
-    # checked yet); 0 = off
-    rotation_anchor_deg: float = 1.0
 
     # outlier rejection (6.8): RANSAC over 5-point subsets of the matches, inliers within
     # ransac_threshold_px (image pixels), hypotheses for ransac_probability at most

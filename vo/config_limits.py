@@ -32,7 +32,6 @@ LIMITS = {
     "reprojection_inlier_px": PIXELS,
     "rotation_prior_deg": interval(0, 180, why="0: the rotation prior is off"),
     "rotation_prior_gate_deg": interval(above=0, high=180),
-    "rotation_anchor_deg": interval(0, 180, why="0: the tilt anchor is off"),
     "ransac_threshold_px": PIXELS,
     "ransac_rescue_px": PIXELS,
     "ransac_probability": interval(above=0, below=1),

@@ -187,11 +187,10 @@ class Frame:
         # image plane at unit weight; None: not tracked), a keyframe's BA prior
         self.pose_info: np.ndarray | None = None
         # the camera's orientation from outside the images (vo.rotation_prior), and the prior
-        # on R_c_w the pose refinement uses with its information (1/rad^2, camera axes; zero:
-        # none)
+        # on R_c_w the pose refinement uses with its information, 1/rad^2 (0: none)
         self.orientation = None
         self.R_prior = np.eye(3)
-        self.prior_info = np.zeros((3, 3))
+        self.prior_info = 0.0
         # the depth map registered to this image (vo.depth_seeds), until mapping has used it
         self.depth: np.ndarray | None = None
 

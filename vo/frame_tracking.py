@@ -16,7 +16,7 @@ from vo.map_matching import MapMatcher, Matches
 from vo.pose_optimizer import pose_covariance
 from vo.quality import LostCounter
 from vo.result import FrameResult, PriorUse, Quality, ms_since
-from vo.rotation_prior import TiltAnchor, agrees, combined, relative_prior
+from vo.rotation_prior import agrees, relative_prior
 from vo.se3 import inv_se3, rotation_angle_deg
 
 
@@ -31,7 +31,6 @@ class FrameTracking:
         self.motion = np.eye(4)  # T_c_w of the last frame times the inverse of the one before
         self.turn_rate = 0.0  # degrees per second the camera turned in that motion
         self.lost = LostCounter(config)
-        self.tilt = TiltAnchor(config.rotation_anchor_deg)  # the map's tilt in the fixed frame
 
     def track(self, frame: Frame, timings: dict[str, float]) -> tuple[FrameResult, bool]:
         """Track frame from the last one: its result (quality LOST once too many frames in a
@@ -52,7 +51,6 @@ class FrameTracking:
             return result, False
         self.lost.update(quality)
         self.matcher.accept(frame, m)
-        self.tilt.add(frame.orientation, frame.T_c_w[:3, :3])
         self.motion = frame.T_c_w @ inv_se3(last.T_c_w)
         dt = frame.t - last.t
         self.turn_rate = rotation_angle_deg(self.motion[:3, :3]) / dt if dt > 0 else 0.0
@@ -65,14 +63,12 @@ class FrameTracking:
 
     def _align(self, frame: Frame, last: Frame) -> PriorUse:
         """Sparse image alignment to the last frame from the predicted pose: the constant-
-        velocity motion, turned by the rotation prior when there is one (the turn since the
-        last frame and the map's tilt anchor, combined); a prior the alignment turns away from
-        beyond the gate is refused and the alignment done again without it."""
+        velocity motion, turned by the rotation prior when there is one; a prior the alignment
+        turns away from beyond the gate is refused and the alignment done again without it."""
         cfg = self.config
         predicted = (self.motion if cfg.constant_velocity else np.eye(4)) @ last.T_c_w
-        prior = combined(relative_prior(frame.orientation, last.orientation, last.T_c_w[:3, :3],
-                                        cfg.rotation_prior_deg),
-                         self.tilt.prior(frame.orientation))
+        prior = relative_prior(frame.orientation, last.orientation, last.T_c_w[:3, :3],
+                               cfg.rotation_prior_deg)
         if prior is not None:
             frame.T_c_w = _turned_in_place(predicted, prior[0])
             self._align_to(frame, last)
@@ -94,7 +90,6 @@ class FrameTracking:
         self.motion = np.eye(4)
         self.turn_rate = 0.0
         self.keyframes.restart()
-        self.tilt = TiltAnchor(self.config.rotation_anchor_deg)
         frame.n_visible = n_visible
         ids = frame.feat_point
         _, H, sigma, _ = self.matcher.optimize(frame, ids, frame.feat_px, frame.feat_level)

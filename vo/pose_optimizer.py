@@ -111,13 +111,12 @@ def optimize_pose(pos_w, obs, level, whiten, T_c_w, iterations, sigma_floor, R_p
                 b[a] += wgt * (Jw[0, a] * err[i, 0] + Jw[1, a] * err[i, 1])
                 for q in range(6):
                     H[a, q] += wgt * (Jw[0, a] * Jw[0, q] + Jw[1, a] * Jw[1, q])
-        if prior_info[0, 0] + prior_info[1, 1] + prior_info[2, 2] > 0.0:
+        if prior_info > 0.0:
             e_r = log_so3(R_prior @ np.ascontiguousarray(T[:3, :3].T))
-            s2 = sigma * sigma
+            w_r = prior_info * sigma * sigma
             for a in range(3):
-                for q in range(3):
-                    H[3 + a, 3 + q] += prior_info[a, q] * s2
-                    b[3 + a] += prior_info[a, q] * s2 * e_r[q]
+                H[3 + a, 3 + a] += w_r
+                b[3 + a] += w_r * e_r[a]
         det, xi = solve_spd(H, b)
         if abs(det) < 1e-30:
             break
