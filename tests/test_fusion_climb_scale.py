@@ -7,7 +7,7 @@ import numpy as np
 
 from daemon.fusion.climb_scale import ClimbScale
 from daemon.fusion.config import FusionConfig
-from daemon.fusion.state import ANCHOR, BARO, LOG_SCALE, POS, NavFilter
+from daemon.fusion.state import ANCHOR, LOG_SCALE, POS, NavFilter
 
 SCALE = 2.5  # metres per map unit
 
@@ -29,28 +29,6 @@ def test_scale_from_a_climb_within_its_std() -> None:
     log_scale, std = _climb(5.0).fit(1.0, 0.3)
     assert std < 0.05
     assert abs(log_scale - np.log(SCALE)) < 3 * std
-
-
-def test_the_rotors_wash_that_comes_with_the_lift_off_is_in_the_std() -> None:
-    """A barometer reading high under the rotors and low near the ground (the ground effect
-    fading by 2 m, sim/autopilot/BEHAVIOUR.md) biases a 3 m climb's scale, which its residuals
-    hardly show: the std carries the flight std over the climb."""
-    climb = ClimbScale()
-    for k, altitude in enumerate(np.linspace(0.0, 3.0, 60)):
-        wash = 0.8 - max(0.0, 1.0 - altitude / 2.0) if k > 0 else 0.0
-        climb.add(-altitude / SCALE, float(k), altitude + wash)
-    log_scale, narrow = climb.fit(1.0, 0.05)
-    assert abs(log_scale - np.log(SCALE)) > 3 * narrow  # sure and wrong without it
-    log_scale, std = climb.fit(1.0, 0.05, 1.0)
-    assert abs(log_scale - np.log(SCALE)) < 3 * std and std > 0.2
-
-
-def test_lift_off_and_touchdown_loosen_the_barometers_offset() -> None:
-    f = NavFilter(FusionConfig(baro_flight_std_m=0.8))
-    f.start(0.0, 0.1)
-    before = f.P[BARO, BARO]
-    f.wash_changed()
-    assert f.P[BARO, BARO] == before + 0.64
 
 
 def test_a_reading_is_paired_once() -> None:

@@ -44,13 +44,10 @@ class ClimbScale:
         """The tracker's height range in metres at scale exp(log_scale)."""
         return float(np.exp(log_scale) * np.ptp(self.z_units)) if self.z_units else 0.0
 
-    def fit(self, min_climb_m: float, baro_std_m: float,
-            flight_std_m: float = 0.0) -> tuple[float, float] | None:
+    def fit(self, min_climb_m: float, baro_std_m: float) -> tuple[float, float] | None:
         """(ln(scale), its std) once the climb reaches `min_climb_m` and the fit says the map
         goes down when the barometer goes up; else None. The std is the larger of the
-        barometer's noise and the fit's residuals, over the tracker's spread of heights, and
-        `flight_std_m` (the rotors' wash, which comes with the lift-off and no residual shows)
-        over the climb."""
+        barometer's noise and the fit's residuals, over the tracker's spread of heights."""
         if len(self.z_units) < 3:
             return None
         z = np.asarray(self.z_units)
@@ -64,6 +61,4 @@ class ClimbScale:
             return None
         residual = down - down.mean() - slope * dz
         noise = max(baro_std_m, float(np.sqrt(residual @ residual / (len(z) - 2))))
-        climb = slope * float(np.ptp(z))
-        return float(np.log(slope)), float(np.hypot(noise / (slope * np.sqrt(spread)),
-                                                    flight_std_m / climb))
+        return float(np.log(slope)), noise / (slope * np.sqrt(spread))

@@ -131,11 +131,6 @@ class FusionConfig:
     use_baro: bool = True
     baro_std_m: float = 0.3
     baro_walk_m_per_sqrt_s: float = 0.02
-    # what the rotors' wash may move the barometer by between standing and flying, unknown
-    # per airframe (ArduPilot's BARO1_THST_SCALE fitted from published logs: 100-200 Pa at
-    # hover throttle, 0.8-1.7 m; sim/autopilot/BEHAVIOUR.md): its offset's variance grows by
-    # this squared at lift-off and touchdown, and a climb's scale carries it over the climb
-    baro_flight_std_m: float = 1.0
     # while the filter does not know the scale (no rangefinder, no IMU fix yet), it is taken
     # from a least-squares fit of the tracker's height against the barometer's altitude once
     # the barometer has seen this much climb (climb_scale.py), not from the wide prior's

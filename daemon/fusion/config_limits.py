@@ -71,7 +71,6 @@ LIMITS = {
     "terrain_correlation_m": interval(above=0, high=100_000),
     "scene_height_std_fraction": interval(above=0, high=1),
     "baro_std_m": STD_M,
-    "baro_flight_std_m": STD_M,
     "baro_walk_m_per_sqrt_s": interval(0, 100),
     "climb_scale_min_m": interval(above=0, high=1000),
     "gate_chi2_1dof": CHI2,

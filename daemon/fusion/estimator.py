@@ -104,7 +104,6 @@ class FusionEstimator:
         self._filter_lock = threading.Lock()  # the filter, between frames and bridges
         self.first_aligned_s: float | None = None  # when a map's scale first converged
         self.rest = RestDetector(cfg)
-        self._at_rest: bool | None = None  # at the last frame: a change is a lift-off/touchdown
         self.continuity = Continuity(cfg.gate_chi2_3dof)
         self._segment = 0
         self._first_attitude_t: float | None = None
@@ -407,11 +406,7 @@ class FusionEstimator:
         if f.t is None:
             return
         self._propagate(t)
-        at_rest = self.rest.at_rest(t)
-        if self._at_rest is not None and at_rest != self._at_rest:
-            f.wash_changed()
-        self._at_rest = at_rest
-        if at_rest:
+        if self.rest.at_rest(t):
             m.update_rest(f)
         if frame is not None:
             self.maps.fuse(t, frame)

@@ -169,7 +169,7 @@ class MapFusion:
         std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
         if att is None or (std <= cfg.coarse_scale_std and self.imu_fresh(t)):
             return
-        fit = f.climb.fit(cfg.climb_scale_min_m, cfg.baro_std_m, cfg.baro_flight_std_m)
+        fit = f.climb.fit(cfg.climb_scale_min_m, cfg.baro_std_m)
         if fit is not None:  # the map's own scale wanders over the climb (its walk, halved)
             fit = (fit[0], float(np.hypot(fit[1], 0.5 * cfg.scale_walk_climb_per_sqrt_m
                                           * np.sqrt(f.climb.climb_m(fit[0])))))
@@ -244,8 +244,7 @@ class MapFusion:
         if units is not None and self.camera_down and height is not None and height > 0:
             # no rangefinder: the height above where it stood (barometer), as wrong as the
             # filter's height, the barometer's noise and the rotors' wash on it allow
-            std = (float(np.sqrt(f.P[2, 2])) + np.hypot(cfg.baro_std_m, cfg.baro_flight_std_m)
-                   ) / height
+            std = (float(np.sqrt(f.P[2, 2])) + cfg.baro_std_m) / height
             if std < cfg.nav_scale_std:  # FIT: a surer fit replaces it
                 return float(np.log(height / units)), std, ScaleSource.FIT
         return (float(f.x[LOG_SCALE]) if f.segment >= 0 else float(np.log(cfg.initial_scale)),

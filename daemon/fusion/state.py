@@ -231,11 +231,6 @@ class NavFilter:
         self.P[VEL, VEL] += np.outer(rate, rate)
         self.vo_disagreement = []
 
-    def wash_changed(self) -> None:
-        """The vehicle lifted off or touched down: the rotors' wash on the barometer came or
-        went, by an amount no reading shows, so its offset is that much less known."""
-        self.P[BARO, BARO] += self.cfg.baro_flight_std_m**2
-
     def rescale(self, p_w: np.ndarray, R_n_b: np.ndarray, log_scale: float,
                 scale_std: float, source: ScaleSource = ScaleSource.FIT) -> None:
         """Replace the scale by an independent estimate (ln, std; climb_scale.py,
