@@ -12,7 +12,6 @@ import asyncio
 import logging
 import os
 import sys
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -168,15 +167,16 @@ def tracker_factory(config: Config, camera: CameraModel,
 
     if not warm_first:
         return make
-    warmed = threading.Event()
+    warmed = False  # only the tracking thread builds trackers
 
     def warm_then_make(frame: Frame) -> object:
-        if not warmed.is_set():
+        nonlocal warmed
+        if not warmed:
             height, width = frame.image.shape[:2]
             log.info("warming the tracker up (the first start after an install compiles its "
                      "kernels: a minute or more on a small computer)")
             log.info("tracker warmed up in %.1f s", warm_up(make, width, height))
-            warmed.set()
+            warmed = True
         return make(frame)
 
     return warm_then_make

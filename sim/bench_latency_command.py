@@ -20,11 +20,11 @@ import time
 
 from daemon.camera import TestPatternSource
 from daemon.config import Config, load_config, replace
-from daemon.run_command import camera_model, setup_logging, tracker_factory
+from daemon.run_command import camera_model, setup_logging, tracker_factory, warm_up
 from daemon.service import Service, prefer_handoffs
 from sim.autopilot import configured_options
 from sim.replay.autopilot_process import AutopilotProcess, VisionMessage
-from sim.replay.harness import choose_estimator, run_replay, warm_up
+from sim.replay.harness import choose_estimator, run_replay
 from sim.replay.recording import Recorder, stats_ms
 from vo.result import Quality
 

@@ -224,12 +224,12 @@ class MapFusion:
     def _scale_prior(self, t: float, frame: FrameInput,
                      R_n_b: np.ndarray) -> tuple[float, float | None, ScaleSource | None]:
         """ln(scale), its std and where it came from (None: the std says) for a map the filter
-        starts on: with a downward camera and a
-        fresh rangefinder reading, the reading over the map's height in its own units: the
-        median depth of the points the frame matched, or map_depth_units on the map's first
-        frame (the tracker scales a new map so); without the rangefinder, the height above
-        where the vehicle stood at the start (flat ground assumed, the std says how sure);
-        else the last map's scale or the configured guess with the wide prior (None). A map
+        starts on: with a downward camera and a fresh rangefinder reading, the reading over
+        the map's height in its own units: the median depth of the points the frame matched,
+        or map_depth_units on the map's first frame (the tracker scales a new map so); without
+        the rangefinder, the height above where the vehicle stood at the start (flat ground
+        assumed, the std says how sure); else the last map's scale or the configured guess
+        with the wide prior (None). A map
         started after the climb without a rangefinder had only the IMU's fit left, which a
         hover does not give: the IMU carried the vehicle alone and the autopilot's EKF
         failsafed on 9 of 10 seeds."""

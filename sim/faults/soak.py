@@ -26,19 +26,19 @@ from pathlib import Path
 import numpy as np
 
 from daemon.config import Config, replace
-from daemon.run_command import tracker_factory
+from daemon.run_command import tracker_factory, warm_up
 from daemon.service import Service, prefer_handoffs
 from sim.autopilot import SimOptions
 from sim.datasets.layout import SensorSamples
 from sim.replay.autopilot_process import AutopilotProcess
 from sim.replay.flight import (
-    body_imu,
     drone_config,
+    recorded_sensors,
     resampled,
     sensor_streams,
     vehicle_trajectory,
 )
-from sim.replay.harness import ReplaySource, warm_up
+from sim.replay.harness import ReplaySource
 from sim.replay.preflight import WithPreflight
 from sim.replay.prerender import prerendered
 from sim.replay.replay_run import FirstFrames
@@ -172,9 +172,7 @@ def _serve_service(sequence: Sequence, config: Config, frames: int,
     # armed after a pre-flight on the ground, as `sdvl replay` flies: a disarmed autopilot
     # says it is landed, and the fusion would hold a flying vehicle still
     autopilot = AutopilotProcess(SimOptions(streams=sensor_streams("ardupilot", flight)),
-                                 resampled(flight), body_imu(sequence),
-                                 sequence.extras.get("sensors"), arm=True,
-                                 imu_bias=sequence.extras.get("imu_bias"))
+                                 resampled(flight), arm=True, **recorded_sensors(sequence))
     try:
         config = replace(config, mavlink={"link": autopilot.url})
         source = ReplaySource(WithPreflight(FirstFrames(sequence, frames)), True, 0.0,

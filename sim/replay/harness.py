@@ -27,9 +27,9 @@ from sim.autopilot import SimOptions, configured_options
 from sim.replay.autopilot_process import AutopilotProcess
 from sim.replay.flight import (
     absent_sensors,
-    body_imu,
     drone_config,
     is_ned,
+    recorded_sensors,
     resampled,
     vehicle_trajectory,
 )
@@ -185,8 +185,7 @@ def _replay(sequence: object, config: Config, plan: ReplayPlan, show: Progress,
     frames = FirstFrames(sequence, plan.max_frames)
     drone = plan.realtime and config.fusion.enabled and flight is not None
     autopilot = AutopilotProcess(options, None if flight is None else resampled(flight),
-                                 body_imu(sequence), sequence.extras.get("sensors"), arm=drone,
-                                 imu_bias=sequence.extras.get("imu_bias"))
+                                 arm=drone, **recorded_sensors(sequence))
     if drone:  # it stands on the ground first, powered on, and the pilot arms
         frames = WithPreflight(frames)
         flight = held_before(flight, frames.seconds)
