@@ -31,7 +31,7 @@ class Matches:
     ids: np.ndarray
     uv: np.ndarray
     levels: np.ndarray
-    n_visible: int
+    n_visible: int  # grid cells the usable map points project into
     n_attempts: int
     attempted: np.ndarray
     inlier: np.ndarray
