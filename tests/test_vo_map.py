@@ -1,7 +1,6 @@
 """Map storage: slot recycling is delayed, removing a keyframe drops what it hosts, the store
-stays bounded under churn, a keyframe observes only live points; the points seen for the keyframe
-policy count grid cells; quality classification of
-6.10."""
+stays bounded under churn, a keyframe observes only live points; the points seen for the
+keyframe policy count grid cells; quality classification of 6.10."""
 
 from __future__ import annotations
 
