@@ -36,6 +36,7 @@ class MavlinkCodec:
         self.mav.robust_parsing = True
         self.on_message = on_message
         self.bad_frames = 0
+        self.unknown = 0  # messages of the autopilot's dialect that common.xml does not define
         self.parser_resets = 0
         self.mavlink1_seen = False
         self.sent: dict[str, int] = {}
@@ -66,4 +67,7 @@ class MavlinkCodec:
                 log.warning("autopilot speaks MAVLink 1 (system %d): set its port to MAVLink 2 "
                             "(ArduPilot SERIALx_PROTOCOL=2) or quality, covariance and "
                             "reset_counter are lost", msg.get_srcSystem())
+            if msg.get_type().startswith("UNKNOWN_"):  # ArduPilot's EKF_STATUS_REPORT, AHRS...
+                self.unknown += 1  # pymavlink gives them no sender: system 0, not a stranger
+                continue
             self.on_message(msg)

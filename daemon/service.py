@@ -31,6 +31,7 @@ from daemon.config import Config, changed_keys, replace
 from daemon.estimate import Estimator, PassThroughEstimator, VisionEstimate
 from daemon.frames import BadFrame, Frame, FrameCheck, LatestSlot
 from daemon.health import Fault, Health, HealthCheck
+from daemon.heap import HeapTrim
 from daemon.link import open_link
 from daemon.mavlink_codec import MavlinkCodec
 from daemon.obstacle_feed import ObstacleFeed
@@ -120,6 +121,7 @@ class Service:
         self.texts = StatusTexts(mav.statustext_interval_s, self._send_text)
         self.link = open_link(mav.link, self.codec.feed)
         self.streams = self._stream_keeper()
+        self.heap = HeapTrim()  # freed memory back to the system (a long run's holes)
         self._last_sent_t: float | None = None
         self._last_frame_sent_t: float | None = None  # capture time of the last tracked frame sent
         self._reset_counter = 0
@@ -429,6 +431,8 @@ class Service:
                 self.origin.tick(now, target)
             self._check_health(now)
             self.texts.flush(now)
+            if self.heap.due(now):
+                asyncio.get_running_loop().run_in_executor(None, self.heap.trim_now)
             await asyncio.sleep(HOUSEKEEPING_S)
 
     async def _systemd(self) -> None:

@@ -27,6 +27,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "eval": ("sim.eval_command", "score an estimated trajectory against ground truth (ATE, RPE)"),
     "track": ("sim.track_command", "run the SDVL tracker over a sequence: accuracy and timing"),
     "track-table": ("sim.track_table_command", "tracker configurations x sequences: ATE, timing"),
+    "track-compare": ("sim.track_compare_command",
+                      "this tracker timed side by side with a git revision's: stage ratios"),
     "ba-bench": ("sim.ba_bench_command", "local BA solvers on captured problems: cost, time"),
     "map": ("sim.map_command", "fuse depth along metric poses into a 3D occupancy map"),
     "calibrate": ("calib.calibrate_command", "calibrate a camera; convert calibration files"),

@@ -2,7 +2,8 @@
 
 Shared by the tracker's and the service's configs. Every number must be finite (TOML has `nan`
 and `inf`); a field may carry its own range or choices beside it (`bounded`, `one_of`), checked
-for every table and every programmatic copy (`check_fields`).
+for every table and every programmatic copy (`check_fields`), or its range may be kept in a
+table of limits beside the class (`interval`, `check_limits`).
 """
 
 from __future__ import annotations
@@ -63,11 +64,17 @@ class Bounds:
                 f"{')' if self.high_open else ']'}")
 
 
+def interval(low: float | None = None, high: float | None = None, *,
+             above: float | None = None, below: float | None = None, why: str = "") -> Bounds:
+    """[low, high], or (above, ...), (..., below): the Bounds of one setting."""
+    return Bounds(above if above is not None else low, below if below is not None else high,
+                  above is not None, below is not None, why)
+
+
 def bounded(default: float, low: float | None = None, high: float | None = None, *,
             above: float | None = None, below: float | None = None, why: str = ""):
     """A dataclass field whose value must lie in [low, high] (or (above, ...), (..., below))."""
-    bounds = Bounds(above if above is not None else low, below if below is not None else high,
-                    above is not None, below is not None, why)
+    bounds = interval(low, high, above=above, below=below, why=why)
     return dataclasses.field(default=default, metadata={"bounds": bounds})
 
 
@@ -107,6 +114,14 @@ def check_fields(instance: object, section: str, path: str | Path | None = None)
         if hints[f.name] in TYPE_NAMES:
             checked_value(f"{section}.{f.name}", value, hints[f.name], path)
         _check_metadata(f"{section}.{f.name}", value, f.metadata, path)
+
+
+def check_limits(instance: object, section: str, limits: typing.Mapping[str, Bounds],
+                 path: str | Path | None = None) -> None:
+    """InputError naming the first field outside its interval in `limits` (field name ->
+    Bounds): the ranges of a settings dataclass kept in a table beside it."""
+    for name, bounds in limits.items():
+        _check_metadata(f"{section}.{name}", getattr(instance, name), {"bounds": bounds}, path)
 
 
 def dataclass_from_table(cls: type, table: object, section: str,

@@ -137,3 +137,16 @@ def test_service_survives_hostile_bytes(live_service, garbage: bytes):
     assert wait_for(lambda: len(sim.messages("ODOMETRY", since=t0)) >= 2, 2.0)
     assert wait_for(lambda: len(sim.messages("TIMESYNC", since=t0)) >= 1, 2.0)
     assert run.thread.is_alive() and run.service.watch.alive
+
+
+def test_messages_of_the_autopilots_own_dialect_are_counted_not_taken_for_a_stranger():
+    """ArduPilot streams ardupilotmega messages (EKF_STATUS_REPORT is 193) that common.xml
+    does not define; pymavlink decodes them as UNKNOWN_193 from system 0."""
+    from pymavlink.dialects.v20 import ardupilotmega
+
+    autopilot = ardupilotmega.MAVLink(None, srcSystem=1, srcComponent=1)
+    got = []
+    codec = MavlinkCodec(1, 197, lambda b: True, got.append)
+    codec.feed(autopilot.ekf_status_report_encode(0, 0.1, 0.1, 0.1, 0.1, 0).pack(autopilot)
+               + autopilot.heartbeat_encode(2, 3, 0, 0, 3).pack(autopilot))
+    assert [m.get_type() for m in got] == ["HEARTBEAT"] and codec.unknown == 1

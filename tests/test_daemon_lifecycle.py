@@ -83,6 +83,29 @@ def test_sigterm_as_soon_as_the_process_runs_is_a_clean_stop(tmp_path):
     print(f"\nSIGTERM handler installed {installed_s * 1e3:.0f} ms after the start")
 
 
+def test_sighup_while_starting_is_ignored_and_said(tmp_path):
+    """SIGHUP the moment the handlers are in place (systemd's reload during the start): the
+    service says it is ignored and starts as if it had not come."""
+    notify = receiver(tmp_path / "notify")
+    config = tmp_path / "sdvl.toml"
+    config.write_text('[camera]\nsource = "testpattern"\n')
+    proc = start(config, tmp_path / "notify")
+    try:
+        while not catches_sigterm(proc.pid) and proc.poll() is None:
+            time.sleep(0.002)
+        proc.send_signal(signal.SIGHUP)
+        notify.settimeout(60)
+        assert notify.recv(4096).decode().startswith("READY=1")
+        proc.send_signal(signal.SIGTERM)
+        _, stderr = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, stderr
+    assert "SIGHUP while starting" in stderr and "ignored" in stderr
+    assert "Traceback" not in stderr
+
+
 def test_sighup_rereads_the_config_and_sigterm_stops(tmp_path):
     notify = receiver(tmp_path / "notify")
     config = tmp_path / "sdvl.toml"

@@ -111,3 +111,31 @@ def test_fusion_is_never_confidently_wrong_while_the_autopilot_is_silent(flight)
     steer the map's alignment as if fresh (7-13 % of the positions beyond 3 sigma)."""
     s = run_scenarios(flight, ["link-loss-5s", "reboot"], seed=3, window=WINDOW)
     assert all(score.beyond_share <= 0.01 for score in s), s
+
+
+@pytest.fixture(scope="module")
+def state_and_starvation(flight):
+    """A false landed state and a starved CPU, scored against one clean run."""
+    return {s.scenario: s for s in run_scenarios(flight, ["landed-while-flying", "cpu-starved"],
+                                                 seed=3, window=WINDOW)}
+
+
+def test_an_autopilot_saying_landed_in_flight_does_not_hold_the_vehicle_still(
+        state_and_starvation):
+    """HEARTBEAT STANDBY and EXTENDED_SYS_STATE ON_GROUND for 3 s in the first leg: zero
+    velocity against a vehicle that flies fails its gate, so the poses are as without."""
+    s = state_and_starvation["landed-while-flying"]
+    print(f"\n{s}")
+    assert s.crashes == 0 and s.published >= 0.8 * s.published_clean
+    assert s.beyond_3_sigma <= s.beyond_3_sigma_clean + 0.005 * s.published
+    assert s.recovery_s is not None and s.recovery_s <= 2.0
+
+
+def test_fusion_is_never_confidently_wrong_on_a_starved_cpu(state_and_starvation):
+    """The link read once a second and one frame in 30 tracked, 1 s late, for 3 s: the filter
+    carries the vehicle on the IMU with its covariance growing; no stamp read late is taken
+    for a reboot."""
+    s = state_and_starvation["cpu-starved"]
+    print(f"\n{s}")
+    assert s.crashes == 0 and s.nan_estimates == 0 and s.stale == 0 and s.reboots_seen == 0
+    assert s.beyond_share <= 0.01 and s.recovery_s is not None and s.recovery_s <= 2.0

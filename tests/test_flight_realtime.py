@@ -6,10 +6,13 @@ vehicle's pose, and every process started is gone afterwards."""
 from __future__ import annotations
 
 import multiprocessing
+import struct
 
 import numpy as np
+import pytest
 
 from daemon.config import Config
+from sim.flight.camera_process import SLOTS, FrameRing, SharedCamera
 from sim.flight.mission import parse_mission
 from sim.flight.realtime import TruthShare, fly_realtime
 from sim.flight.runner import Outcome
@@ -34,3 +37,38 @@ def test_realtime_flight_runs_the_mission_beside_a_busy_process():
     assert np.allclose(run.truth.positions[-1][:2], 0.0, atol=1e-6)  # still on its gear
     assert run.record.statustexts  # the autopilot's own record came back from its process
     assert multiprocessing.active_children() == []
+
+
+def test_frame_ring_hands_over_frames_and_says_when_one_was_overwritten():
+    ring = FrameRing((4, 6), depth=True)
+    try:
+        image, depth = np.full((4, 6), 7, np.uint8), np.full((4, 6), 2.5, np.float32)
+        ring.write(3, 0.1, 100.1, image, depth)
+        t, t_capture, read_image, read_depth = ring.read(3)
+        assert (t, t_capture) == (0.1, 100.1)
+        assert np.array_equal(read_image, image) and np.array_equal(read_depth, depth)
+        ring.write(3 + SLOTS, 0.2, 100.2, image)  # a reader a whole ring behind
+        assert ring.read(3) is None
+        assert np.array_equal(ring.read(3 + SLOTS)[3], np.zeros((4, 6), np.float32))
+    finally:
+        ring.close()
+
+
+def test_shared_camera_skips_overwritten_frames_and_reports_a_silent_camera():
+    ring = FrameRing((2, 2))
+    ours, theirs = multiprocessing.Pipe()
+    camera = SharedCamera(ours, ring, None)
+    try:
+        for index in (1, 2, 2 + SLOTS):
+            ring.write(index, index / 30, 50 + index / 30, np.full((2, 2), index, np.uint8))
+            theirs.send_bytes(struct.pack("<q", index))
+        t, _, image = camera.read()  # frame 1; frame 2's slot holds frame 2 + SLOTS now
+        assert t == 1 / 30 and image[0, 0] == 1
+        t, _, image = camera.read()
+        assert image[0, 0] == 2 + SLOTS and camera.overwritten == 1
+        assert camera.offered == 2 + SLOTS
+        theirs.close()
+        with pytest.raises(OSError, match="ended"):
+            camera.read()
+    finally:
+        ring.close()

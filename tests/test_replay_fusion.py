@@ -82,24 +82,24 @@ def _take_off_replay(realtime: bool, out_dir):
     assert r["estimator"] == "fusion" and r["align"] == "start" and r["scale"] == 1.0
     assert r["resets"] == 0
     assert r["tracked"] == r["processed"]
-    # published once scale and heading converged (or too old to send on a busy machine)
-    assert r["messages_received"] + r["skipped_stale"] >= 150
     return r, aligned, reference, len(gt)
 
 
 def test_realtime_fusion_replay_publishes_ned_poses(tmp_path):
     """The README's default: the autopilot in its own process, frames at the camera's rate."""
-    r, _, _, frames = _take_off_replay(True, tmp_path)
-    # how many frames a loaded machine drops, and so the error, is timing: 17 of 300 dropped
-    # and ATE 0.069 m beside the other pytest worker on 2 cores, 0.003-0.034 m beside two busy
-    # loops, 0.022-0.029 m alone (lockstep 0.013 m)
-    assert r["dropped"] <= 0.2 * frames
-    assert r["ate_rmse_m"] < 0.15 and r["rot_rmse_deg"] < 1.0
+    r, _, _, _ = _take_off_replay(True, tmp_path)
+    # how many frames a busy machine drops is timing (17 to 63 of 300 seen beside other work),
+    # and the error with it (ATE 0.003-0.069 m; lockstep 0.013 m): only what no load changes is
+    # asserted here, a frame or axis mistake (metres over the 10 m climb); accuracy: lockstep
+    assert r["messages_received"] >= 30
+    assert r["ate_rmse_m"] < 0.5 and r["rot_rmse_deg"] < 1.0
 
 
 def test_fusion_replay_scores_ned_positions_after_the_start_alignment(tmp_path, capsys):
-    r, aligned, reference, _ = _take_off_replay(False, tmp_path)
+    r, aligned, reference, frames = _take_off_replay(False, tmp_path)
     assert r["dropped"] == 0
+    # published once scale and heading converged
+    assert r["messages_received"] >= frames // 2
     assert r["ate_rmse_m"] < 0.05 and r["rot_rmse_deg"] < 1.0
     assert r["velocity_rmse_m_s"] < 0.1
     assert aligned is not None

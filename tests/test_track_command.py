@@ -140,5 +140,8 @@ def test_profile_lists_the_tracker_functions_per_frame(data_dir, capsys):
     own = [f["own_ms"] for f in functions]
     assert own == sorted(own, reverse=True) and all(f["cum_ms"] >= f["own_ms"] for f in functions)
     assert any(f["function"].startswith("vo/") for f in functions)  # the tracker's own code
+    slow = [f["stages"]["track"] for f in profile["slowest"]]
+    assert len(slow) == 5 and slow == sorted(slow, reverse=True)
+    assert all(f["quality"] != "initializing" for f in profile["slowest"])
     assert main(["track", str(data_dir / "vamr_ex01_checkerboard736"), "--profile", "5",
                  "--threaded"]) == 2  # cProfile sees one thread: a clear error

@@ -9,7 +9,7 @@ from vo_scenes import pair_truth, sample_corners, textured_pair
 
 from vo.matcher import match_direct, match_epipolar, triangulate_depth
 from vo.orb import OrbQuery, query
-from vo.patch import BORDER_PATCH, sample, zmssd
+from vo.patch import BORDER_PATCH, align2d, sample, warp_patch, zmssd
 
 
 @pytest.fixture(scope="module")
@@ -85,3 +85,46 @@ def test_triangulation_recovers_depth():
     Pc = P + T[:3, 3]
     assert triangulate_depth(T, f_ref, Pc / np.linalg.norm(Pc)) == pytest.approx(
         np.linalg.norm(P), rel=1e-9)
+
+
+def _slow_align2d(flat, off, w, h, ref_border, u, v, iterations):
+    """align2d pixel by pixel with `sample` and numpy's solve (the thesis' 2-D alignment)."""
+    gx = 0.5 * (ref_border[1:9, 2:10] - ref_border[1:9, 0:8]).ravel()
+    gy = 0.5 * (ref_border[2:10, 1:9] - ref_border[0:8, 1:9]).ravel()
+    ref = ref_border[1:9, 1:9].ravel()
+    J = np.column_stack((gx, gy, np.ones(64)))
+    Hinv = np.linalg.inv(J.T @ J)
+    offset = 0.0
+    for _ in range(iterations):
+        if not (5 <= u < w - 6 and 5 <= v < h - 6):
+            return u, v, False
+        res = np.array([sample(flat, off, w, u + c - 4, v + r - 4) for r in range(8)
+                        for c in range(8)]) - ref + offset
+        du, dv, do = Hinv @ (-(J.T @ res))
+        u, v, offset = u + du, v + dv, offset + do
+        if du * du + dv * dv < 0.03 ** 2:
+            return u, v, True
+    return u, v, False
+
+
+def test_align2d_and_warp_against_slow_references(scene):
+    ref, cur = scene[1], scene[2]
+    rng = np.random.default_rng(5)
+    A = np.array([[1.05, 0.1], [-0.08, 0.95]])
+    flat, off, w, h = ref.pyr.flat, ref.pyr.offsets[1], ref.pyr.widths[1], ref.pyr.heights[1]
+    for _ in range(20):
+        u_ref, v_ref = rng.uniform(60, 260), rng.uniform(60, 180)
+        patch = np.empty((BORDER_PATCH, BORDER_PATCH))
+        assert warp_patch(ref.pyr.flat, off, w, h, A, u_ref, v_ref, 1, 0, patch)
+        cx, cy = (u_ref + 0.5) / 2 - 0.5, (v_ref + 0.5) / 2 - 0.5
+        slow = [[sample(flat, off, w, (A[0, 0] * (c - 5) + A[0, 1] * (r - 5)) / 2 + cx,
+                        (A[1, 0] * (c - 5) + A[1, 1] * (r - 5)) / 2 + cy)
+                 for c in range(BORDER_PATCH)] for r in range(BORDER_PATCH)]
+        assert np.allclose(patch, slow, atol=1e-9)
+        u0, v0 = u_ref + rng.normal(0, 1.5), v_ref + rng.normal(0, 1.5)
+        fast = align2d(cur.pyr.flat, 0, cur.pyr.widths[0], cur.pyr.heights[0], patch, u0, v0, 10)
+        assert fast == pytest.approx(_slow_align2d(cur.pyr.flat, 0, cur.pyr.widths[0],
+                                                   cur.pyr.heights[0], patch, u0, v0, 10),
+                                     abs=1e-6)
+    far = np.empty((BORDER_PATCH, BORDER_PATCH))
+    assert not warp_patch(ref.pyr.flat, off, w, h, A * 40.0, 160.0, 120.0, 1, 0, far)

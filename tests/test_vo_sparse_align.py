@@ -8,6 +8,7 @@ from vo_scenes import load_texture, look_down_pose, plane_depth, render_plane, s
 
 from vo import sparse_align
 from vo.frame import Frame
+from vo.patch import sample
 from vo.se3 import exp_se3, inv_se3
 
 
@@ -86,3 +87,39 @@ def test_rotation_only_alignment_turns_and_keeps_the_position(data_dir):
     T_true = T_cur @ inv_se3(T_ref)
     assert _max_reprojection(cam, xyz, np.eye(4), T_true) > 10.0
     assert _max_reprojection(cam, xyz, T, T_true) < 1.0  # level 2: a quarter pixel there
+
+
+def test_residuals_and_normal_equations_against_slow_references(pair):
+    """The vectorised kernels of a Gauss-Newton step: residuals of each visible patch as
+    `sample` gives them pixel by pixel, and H, b, cost summed pixel by pixel with Tukey
+    weights (to rounding: the kernels sum in vector lanes)."""
+    cam, ref, cur, px, xyz, T_true = pair
+    level, T = 1, exp_se3(np.array([0.005, 0.0, 0.0, 0.0, 0.004, 0.0])) @ T_true
+    patches, jac, valid = sparse_align.reference_patches(
+        sparse_align.level_image(ref.pyr, level), level, px, xyz, cam.params[1], cam.params[2])
+    image = sparse_align.level_image(cur.pyr, level)
+    n = len(px) * sparse_align.N4
+    res, seen = np.empty(n), np.empty(n)
+    count = sparse_align._patch_residuals(cam.params, image, level, patches, valid, xyz, T, res,
+                                          seen)
+    flat, off, w, h = image
+    slow_res, slow_seen = np.zeros(n), np.zeros(n)
+    for i in np.flatnonzero(valid):
+        p = T[:3, :3] @ xyz[i] + T[:3, 3]
+        u, v = (cam.project(p[None])[0] + 0.5) / 2.0 ** level - 0.5
+        if not (3 <= u < w - 4 and 3 <= v < h - 4):
+            continue
+        k = i * sparse_align.N4
+        slow_res[k:k + 16] = [sample(flat, off, w, u + c, v + r) - patches[i, (r + 2) * 4 + c + 2]
+                              for r in range(-2, 2) for c in range(-2, 2)]
+        slow_seen[k:k + 16] = 1.0
+    assert count == slow_seen.sum() > 0.8 * n
+    assert np.array_equal(seen, slow_seen) and np.allclose(res, slow_res, atol=1e-9)
+    c = sparse_align.tukey_scale(res[seen > 0])
+    H, b, cost = sparse_align._normal_equations(res, seen, jac, c, np.empty((6, n)))
+    x2 = (res / c) ** 2
+    weight = np.where(x2 < 1.0, (1.0 - x2) ** 2, 0.0) * seen
+    slow_cost = np.sum(seen * np.where(x2 < 1.0, c * c / 6 * (1.0 - (1.0 - x2) ** 3), c * c / 6))
+    assert np.allclose(H, (jac * weight) @ jac.T, rtol=1e-9)
+    assert np.allclose(b, (jac * weight) @ res, rtol=1e-9)
+    assert cost == pytest.approx(slow_cost, rel=1e-9)

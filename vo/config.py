@@ -8,7 +8,8 @@ from pathlib import Path
 from typing import Any
 
 from sdvl.errors import InputError
-from sdvl.tables import dataclass_from_table, read_toml
+from sdvl.tables import check_limits, dataclass_from_table, read_toml
+from vo.config_limits import LIMITS
 
 GTSAM_MISSING = ("ba_method = 'gtsam' needs the gtsam package: pip install "
                  "'sdvl-companion[gtsam]' (or set ba_method = 'trf')")
@@ -243,8 +244,7 @@ class TrackerConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if not 1 <= self.pyramid_levels <= 8:
-            raise InputError("pyramid_levels must be between 1 and 8")
+        check_limits(self, "tracker", LIMITS)  # each number's own range (vo/config_limits.py)
         if not 0 <= self.align_min_level <= self.align_max_level < self.pyramid_levels:
             raise InputError("need 0 <= align_min_level <= align_max_level < pyramid_levels")
         if not 0 <= self.track_search_min_level <= self.match_max_level < self.pyramid_levels:
@@ -258,15 +258,6 @@ class TrackerConfig:
             raise InputError("need 0 <= orb_track_min_level <= match_max_level")
         if self.matcher not in ("patch", "orb"):
             raise InputError(f"matcher must be 'patch' or 'orb', not {self.matcher!r}")
-        if not 0 <= self.orb_max_distance <= 256:
-            raise InputError("orb_max_distance must be between 0 and 256")
-        if not self.depth_noise_per_m2 > 0 or not self.depth_edge_rel >= 0:
-            raise InputError("depth_noise_per_m2 must be positive and depth_edge_rel >= 0")
-        if not (self.rotation_prior_deg >= 0 and self.rotation_prior_gate_deg > 0):
-            raise InputError("rotation_prior_deg must be >= 0 (0: off) and "
-                             "rotation_prior_gate_deg > 0")
-        if self.grid_cell < 8 or self.max_matches < 6 or self.max_keyframes < 3:
-            raise InputError("grid_cell >= 8, max_matches >= 6 and max_keyframes >= 3 required")
 
     @property
     def track_corner_level(self) -> int:

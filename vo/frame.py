@@ -21,15 +21,21 @@ class Pyramid:
     """Image pyramid with `levels` levels packed into one uint8 buffer."""
 
     def __init__(self, image: np.ndarray, levels: int):
-        imgs = [np.ascontiguousarray(image)]
+        h, w = image.shape
+        sizes = [(w, h)]
         for _ in range(levels - 1):
-            imgs.append(cv2.pyrDown(imgs[-1]))
-        self.images = imgs
-        self.widths = np.array([im.shape[1] for im in imgs], dtype=np.int64)
-        self.heights = np.array([im.shape[0] for im in imgs], dtype=np.int64)
-        sizes = self.widths * self.heights
-        self.offsets = np.concatenate(([0], np.cumsum(sizes)[:-1])).astype(np.int64)
-        self.flat = np.concatenate([im.ravel() for im in imgs])
+            sizes.append(((sizes[-1][0] + 1) // 2, (sizes[-1][1] + 1) // 2))  # pyrDown's size
+        self.widths = np.array([s[0] for s in sizes], dtype=np.int64)
+        self.heights = np.array([s[1] for s in sizes], dtype=np.int64)
+        areas = self.widths * self.heights
+        self.offsets = np.concatenate(([0], np.cumsum(areas)[:-1])).astype(np.int64)
+        # each level is made in its place in the flat buffer (no copies of the levels)
+        self.flat = np.empty(int(areas.sum()), dtype=np.uint8)
+        self.images = [self.flat[o:o + a].reshape(sh, sw)
+                       for o, a, (sw, sh) in zip(self.offsets, areas, sizes, strict=True)]
+        self.images[0][:] = image
+        for level in range(1, levels):
+            cv2.pyrDown(self.images[level - 1], dst=self.images[level])
         # what kernels take to find a level in `flat` (the same for every frame of a camera)
         self.layout = (self.offsets, self.widths, self.heights)
 
@@ -50,7 +56,40 @@ def detect_fast(image: np.ndarray, threshold: int) -> tuple[np.ndarray, np.ndarr
     if not kps:
         return np.zeros((0, 2)), np.zeros(0)
     pts = cv2.KeyPoint_convert(kps).astype(np.float64)
-    return pts, np.fromiter((k.response for k in kps), np.float64, len(kps))
+    return pts, fast_scores(image, pts)
+
+
+# the FAST circle of radius 3, (dx, dy) in order around it, and the arc a corner needs
+FAST_CIRCLE = np.array([(0, -3), (1, -3), (2, -2), (3, -1), (3, 0), (3, 1), (2, 2), (1, 3),
+                        (0, 3), (-1, 3), (-2, 2), (-3, 1), (-3, 0), (-3, -1), (-2, -2),
+                        (-1, -3)], dtype=np.int64)
+FAST_ARC = 9
+
+
+@numba.njit(cache=True, nogil=True)
+def fast_scores(image, pts):
+    """FAST scores (OpenCV's responses) of corners pts (N, 2: integer x, y, 3 pixels inside):
+    the largest threshold at which each would still be a corner, minus 1, i.e. over the arcs
+    of FAST_ARC contiguous circle pixels, the largest of an arc's smallest difference from
+    the centre (all brighter, or all darker), minus 1. OpenCV gives its responses only one
+    Python attribute access at a time, which cost more than finding the corners (issue 31)."""
+    ring = np.empty(32, dtype=np.int64)
+    out = np.empty(pts.shape[0])
+    for i in range(pts.shape[0]):
+        x, y = int(pts[i, 0]), int(pts[i, 1])
+        v = np.int64(image[y, x])
+        for k in range(16):
+            ring[k] = np.int64(image[y + FAST_CIRCLE[k, 1], x + FAST_CIRCLE[k, 0]]) - v
+            ring[k + 16] = ring[k]
+        best = 0
+        for start in range(16):
+            lo = hi = ring[start]
+            for j in range(1, FAST_ARC):
+                lo = min(lo, ring[start + j])
+                hi = max(hi, ring[start + j])
+            best = max(best, lo, -hi)  # all brighter by lo, or all darker by -hi
+        out[i] = best - 1
+    return out
 
 
 class Corners:
@@ -58,32 +97,20 @@ class Corners:
     row starts (levels below min_level are left empty).
 
     Columns: `x`, `y` (level pixels), `level`, `score`, `xn`, `yn` (undistorted normalised
-    image-plane coordinates), `level_start` (L+1), `row_start[l]` (height_l + 1 entries).
+    image-plane coordinates, NaN until a search first needs them: corner_normalised),
+    `level_start` (L+1), `row_start[l]` (height_l + 1 entries).
     """
 
-    def __init__(self, pyramid: Pyramid, camera: CameraModel,
-                 detections: list[tuple[np.ndarray, np.ndarray] | None]):
-        xs, ys, lv, sc = [], [], [], []
-        for level, found in enumerate(detections):
-            pts, resp = found if found is not None else (np.zeros((0, 2)), np.zeros(0))
-            order = np.lexsort((pts[:, 0], pts[:, 1]))
-            xs.append(pts[order, 0])
-            ys.append(pts[order, 1])
-            sc.append(resp[order])
-            lv.append(np.full(len(order), level, dtype=np.int64))
-        self.x = np.concatenate(xs)
-        self.y = np.concatenate(ys)
-        self.score = np.concatenate(sc)
-        self.level = np.concatenate(lv)
-        counts = np.array([len(a) for a in xs], dtype=np.int64)
+    def __init__(self, pyramid: Pyramid, detections: list[tuple[np.ndarray, np.ndarray] | None]):
+        found = [d for d in detections if d is not None]
+        counts = np.array([0 if d is None else len(d[1]) for d in detections], dtype=np.int64)
+        pts = np.concatenate([d[0] for d in found]) if found else np.zeros((0, 2))
+        scores = np.concatenate([d[1] for d in found]) if found else np.zeros(0)
         self.level_start = np.concatenate(([0], np.cumsum(counts))).astype(np.int64)
-        max_h = int(pyramid.heights[0]) + 1
-        self.row_start = np.zeros((len(xs), max_h + 1), dtype=np.int64)
-        for level in range(len(xs)):
-            lo, hi = self.level_start[level], self.level_start[level + 1]
-            rows = self.y[lo:hi].astype(np.int64)
-            self.row_start[level] = lo + np.searchsorted(rows, np.arange(max_h + 1), side="left")
-        self.xn, self.yn = _normalised(camera.params, self.x, self.y, self.level)
+        self.x, self.y, self.score, self.level, self.row_start = _sorted_corners(
+            pts, scores, self.level_start, int(pyramid.widths[0]), int(pyramid.heights[0]) + 1)
+        self.xn = np.full(len(self.x), np.nan)
+        self.yn = np.full(len(self.x), np.nan)
         # what the matching kernels take (vo.matcher.match_epipolar)
         self.tables = (self.x, self.y, self.xn, self.yn, self.row_start)
 
@@ -94,17 +121,43 @@ class Corners:
 
 
 @numba.njit(cache=True, nogil=True)
-def _normalised(params, x, y, level):
-    """Undistorted normalised-plane coordinates of level pixels."""
-    n = x.shape[0]
-    xn = np.empty(n)
-    yn = np.empty(n)
-    for i in range(n):
-        bx, by, bz = unproject_pixel(params, from_level(x[i], level[i]),
-                                     from_level(y[i], level[i]))
+def _sorted_corners(pts, scores, level_start, width, max_h):
+    """Corners (x, y, score, level) sorted by (level, row, column) (OpenCV finds them in that
+    order: then nothing moves), and per level the index of its first corner in each row
+    0..max_h (entries past a level's last corner point at the next level's first)."""
+    n_levels = level_start.shape[0] - 1
+    level = np.empty(pts.shape[0], dtype=np.int64)
+    key = np.empty(pts.shape[0], dtype=np.int64)
+    for lv in range(n_levels):
+        for i in range(level_start[lv], level_start[lv + 1]):
+            level[i] = lv
+            key[i] = (lv * (max_h + 1) + int(pts[i, 1])) * (width + 1) + int(pts[i, 0])
+    order = np.arange(pts.shape[0])
+    for i in range(1, key.shape[0]):
+        if key[i] <= key[i - 1]:
+            order = np.argsort(key, kind="mergesort")
+            break
+    x, y, score, lv_out = pts[order, 0], pts[order, 1], scores[order], level[order]
+    row_start = np.empty((n_levels, max_h + 1), dtype=np.int64)
+    for lv in range(n_levels):
+        i, hi = level_start[lv], level_start[lv + 1]
+        for row in range(max_h + 1):
+            while i < hi and int(y[i]) < row:
+                i += 1
+            row_start[lv, row] = i
+    return x, y, score, lv_out, row_start
+
+
+@numba.njit(cache=True, nogil=True)
+def corner_normalised(params, tables, i, level):
+    """Undistorted normalised image-plane coordinates of corner i (at `level`) of a Corners'
+    tables, computed on first use (a search looks at a few of a frame's corners)."""
+    x, y, xn, yn, _ = tables
+    if np.isnan(xn[i]):
+        bx, by, bz = unproject_pixel(params, from_level(x[i], level), from_level(y[i], level))
         xn[i] = bx / bz
         yn[i] = by / bz
-    return xn, yn
+    return xn[i], yn[i]
 
 
 class Frame:
@@ -123,7 +176,7 @@ class Frame:
         self.orb = CornerDescriptors(self.pyr.images)
         self.T_c_w = np.eye(4)
         self._detections: list[tuple[np.ndarray, np.ndarray] | None] = [None] * levels
-        self._corners: dict[int, Corners] = {}
+        self._corners: dict[tuple[int, int], Corners] = {}
         self.feat_point = np.zeros(0, dtype=np.int64)
         self.feat_px = np.zeros((0, 2))
         self.feat_level = np.zeros(0, dtype=np.int64)
@@ -155,17 +208,22 @@ class Frame:
         """Camera centre in the world."""
         return -self.T_c_w[:3, :3].T @ self.T_c_w[:3, 3]
 
-    def corners(self, threshold: int, min_level: int = 0) -> Corners:
-        """FAST corners of the levels from min_level up (each level detected on first use)."""
-        if 0 in self._corners:
-            return self._corners[0]
-        if min_level not in self._corners:
-            for level in range(min_level, len(self._detections)):
+    def corners(self, threshold: int, min_level: int = 0, max_level: int | None = None
+                ) -> Corners:
+        """FAST corners of the levels min_level..max_level (default: the top one), each level
+        detected on first use; the corners of all levels once they have been asked for."""
+        top = len(self._detections) - 1
+        key = (min_level, top if max_level is None else max_level)
+        if (0, top) in self._corners:
+            return self._corners[(0, top)]
+        if key not in self._corners:
+            for level in range(key[0], key[1] + 1):
                 if self._detections[level] is None:
                     self._detections[level] = detect_fast(self.pyr.images[level], threshold)
-            wanted = [d if lv >= min_level else None for lv, d in enumerate(self._detections)]
-            self._corners[min_level] = Corners(self.pyr, self.camera, wanted)
-        return self._corners[min_level]
+            wanted = [d if key[0] <= lv <= key[1] else None
+                      for lv, d in enumerate(self._detections)]
+            self._corners[key] = Corners(self.pyr, wanted)
+        return self._corners[key]
 
     def set_features(self, point: np.ndarray, px: np.ndarray, level: np.ndarray) -> None:
         """Record the map points matched in this frame and where."""

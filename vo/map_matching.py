@@ -8,6 +8,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from calib.camera import CameraModel
@@ -59,7 +60,8 @@ class MapMatcher:
         cfg = self.config
         if cfg.track_candidates or cfg.track_search_fallback or cfg.matcher == "orb":
             t0 = time.perf_counter()
-            frame.corners(cfg.fast_threshold, cfg.track_corner_level)  # searches among corners
+            # searches among corners
+            frame.corners(cfg.fast_threshold, cfg.track_corner_level, cfg.match_max_level)
             timings["corners"] = ms_since(t0)
         t0 = time.perf_counter()
         ids, uv, levels, n_visible, n_attempts, attempted = self._reproject(frame)
@@ -107,17 +109,12 @@ class MapMatcher:
         """Update the found/missed (and rejected) counts of the points of an accepted frame's
         matches m; points that keep failing leave the map."""
         cfg = self.config
-        ids, inlier = m.ids, m.inlier
         pts = self.map.points
-        pts.n_found[ids[inlier]] += 1
+        hopeless = _count_found_missed(pts.n_found, pts.n_missed, m.ids, m.inlier, m.attempted,
+                                       cfg.point_max_missed)
         if cfg.outlier_rejection:
-            self._forget_rejected(ids, inlier)
-        missed = np.setdiff1d(m.attempted, ids)
-        pts.n_missed[missed] += 1
-        # points that keep failing (occluded, badly placed, moving) leave the map
-        hopeless = (pts.n_missed[missed] > cfg.point_max_missed) & (
-            pts.n_missed[missed] > 2 * pts.n_found[missed])
-        pts.delete(missed[hopeless])
+            self._forget_rejected(m.ids, m.inlier)
+        pts.delete(hopeless)
 
     def optimize(self, frame: Frame, ids: np.ndarray, uv: np.ndarray, levels: np.ndarray):
         """Pose refinement from matches; returns (T_c_w, H, sigma, per-match error)."""
@@ -173,3 +170,26 @@ class MapMatcher:
         pts.n_rejected[rejected] += 1
         pts.delete(rejected[pts.n_rejected[rejected] >= self.config.point_max_rejected])
 
+
+
+@numba.njit(cache=True, nogil=True)
+def _count_found_missed(n_found, n_missed, ids, inlier, attempted, max_missed):
+    """MapMatcher.count's counts: +1 found for the inliers among the matched points ids, +1
+    missed for the attempted points not matched; returns those missed that keep failing
+    (occluded, badly placed, moving: more than max_missed misses and twice their finds),
+    which leave the map. `attempted` is sorted; so is the result."""
+    matched = np.zeros(n_found.shape[0], dtype=np.bool_)
+    for j in range(ids.shape[0]):
+        matched[ids[j]] = True
+        if inlier[j]:
+            n_found[ids[j]] += 1
+    hopeless = np.empty(attempted.shape[0], dtype=np.int64)
+    n = 0
+    for p in attempted:
+        if matched[p]:
+            continue
+        n_missed[p] += 1
+        if n_missed[p] > max_missed and n_missed[p] > 2 * n_found[p]:
+            hopeless[n] = p
+            n += 1
+    return hopeless[:n]

@@ -11,6 +11,7 @@ import numba
 import numpy as np
 
 from calib.camera import project_point, unproject_pixel
+from vo.frame import corner_normalised
 from vo.orb import NONE, UNKNOWN, VALID, hamming
 from vo.patch import (
     BORDER_PATCH,
@@ -47,6 +48,28 @@ def affine_cur_ref(params, T_cur_ref, f_ref, depth, u_ref, v_ref, ref_level):
         A[0, k] = (u1 - u0) / step
         A[1, k] = (v1 - v0) / step
     return A
+
+
+@numba.njit(cache=True, nogil=True)
+def inverse2(A):
+    """The inverse of a non-singular 2x2 matrix as LAPACK computes it (getrf with partial
+    pivoting, then getri), so it equals np.linalg.inv(A) to the bit without that call's
+    overhead (a match computes one per point)."""
+    a00, a01, a10, a11 = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
+    swap = abs(a10) > abs(a00)
+    if swap:
+        a00, a01, a10, a11 = a10, a11, a00, a01
+    lower = a10 * (1.0 / a00)
+    i00 = 1.0 / a00
+    i11 = 1.0 / (a11 - lower * a01)
+    i01 = (a01 * i00) * -i11
+    out = np.empty((2, 2))
+    c0, c1 = (1, 0) if swap else (0, 1)
+    out[0, c0] = i00 - i01 * lower
+    out[0, c1] = i01
+    out[1, c0] = 0.0 - i11 * lower
+    out[1, c1] = i11
+    return out
 
 
 @numba.njit(cache=True, nogil=True)
@@ -116,7 +139,7 @@ def match_direct(params, layout, ref_flat, ref_obs, depth, T_cur_ref, cur_flat, 
     if abs(det) < 1e-6:
         return u, v, 0, False
     level = search_level(A, max_level)
-    A_ref_cur = np.linalg.inv(A)
+    A_ref_cur = inverse2(A)
     patch = np.empty((BORDER_PATCH, BORDER_PATCH))
     if not warp_patch(ref_flat, off[ref_level], w[ref_level], h[ref_level], A_ref_cur, ref_u,
                       ref_v, ref_level, level, patch):
@@ -157,7 +180,7 @@ def match_epipolar(params, layout, ref_flat, ref_obs, rho, sigma, T_cur_ref, cur
     ones are marked as needed and the search fails as pending)."""
     off, widths, heights = layout
     ref_u, ref_v, ref_level, f_ref = ref_obs
-    cx, cy, cxn, cyn, c_row_start = corners
+    cx, cy, _, _, c_row_start = corners
     min_level, max_level, margin_px, threshold, iterations = search
     if not (rho > 0.0 and sigma > 0.0 and np.isfinite(rho + sigma)):
         return 0.0, 0.0, 0, False
@@ -188,13 +211,15 @@ def match_epipolar(params, layout, ref_flat, ref_obs, rho, sigma, T_cur_ref, cur
     det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
     if abs(det) < 1e-6:
         return 0.0, 0.0, 0, False
-    A_ref_cur = np.linalg.inv(A)
+    A_ref_cur = inverse2(A)
     use_orb = orb[0] >= 0
     # ORB: corners of level l are compared with the point's descriptor at the reference
     # level that shows the same scale
     level_shift = int(np.round(0.5 * np.log2(abs(det))))
     pending = orb[7][0]
-    patch = np.empty((BORDER_PATCH, BORDER_PATCH))
+    # the warped reference patch of each level searched, kept for the refinement
+    patches = np.empty((max_level + 1, BORDER_PATCH, BORDER_PATCH))
+    warped = np.zeros(max_level + 1, dtype=np.bool_)
     best = orb[0] + 1.0 if use_orb else threshold * PATCH_AREA
     best_x = best_y = 0.0
     best_level = -1
@@ -207,9 +232,12 @@ def match_epipolar(params, layout, ref_flat, ref_obs, rho, sigma, T_cur_ref, cur
             if orb[2][rl] == UNKNOWN:
                 orb[3][rl] = True
                 orb[7][0] += 1
-        elif not warp_patch(ref_flat, off[ref_level], widths[ref_level], heights[ref_level],
-                            A_ref_cur, ref_u, ref_v, ref_level, level, patch):
-            continue
+        else:
+            warped[level] = warp_patch(ref_flat, off[ref_level], widths[ref_level],
+                                       heights[ref_level], A_ref_cur, ref_u, ref_v, ref_level,
+                                       level, patches[level])
+            if not warped[level]:
+                continue
         s = 2.0 ** level
         m = margin_px * s
         tol = m / focal
@@ -227,10 +255,11 @@ def match_epipolar(params, layout, ref_flat, ref_obs, rho, sigma, T_cur_ref, cur
                 y = cy[i]
                 if not inside(x, y, w, h, HALF + 1):
                     continue
-                if _segment_distance(cxn[i], cyn[i], ax, ay, bx, by) > tol:
+                xn, yn = corner_normalised(params, corners, i, level)
+                if _segment_distance(xn, yn, ax, ay, bx, by) > tol:
                     continue
                 if not use_orb:
-                    score = zmssd(patch, cur_flat, off[level], w, int(x), int(y))
+                    score = zmssd(patches[level], cur_flat, off[level], w, int(x), int(y))
                 elif orb[5][i] == UNKNOWN:
                     orb[6][i] = True
                     orb[7][0] += 1
@@ -246,17 +275,19 @@ def match_epipolar(params, layout, ref_flat, ref_obs, rho, sigma, T_cur_ref, cur
         return 0.0, 0.0, 0, False
     lv = best_level
     u0, v0 = from_level(best_x, lv), from_level(best_y, lv)
-    if not warp_patch(ref_flat, off[ref_level], widths[ref_level], heights[ref_level],
-                      A_ref_cur, ref_u, ref_v, ref_level, lv, patch):
+    if not (warped[lv] or warp_patch(ref_flat, off[ref_level], widths[ref_level],
+                                     heights[ref_level], A_ref_cur, ref_u, ref_v, ref_level, lv,
+                                     patches[lv])):
         return u0, v0, lv, use_orb  # a descriptor match whose patch cannot be refined
-    ul, vl, ok = align2d(cur_flat, off[lv], widths[lv], heights[lv], patch, best_x, best_y,
+    ul, vl, ok = align2d(cur_flat, off[lv], widths[lv], heights[lv], patches[lv], best_x, best_y,
                          iterations)
     if ok and (ul - best_x) ** 2 + (vl - best_y) ** 2 <= 4.0:
         u0, v0 = from_level(ul, lv), from_level(vl, lv)
-    if lv > 0 and warp_patch(ref_flat, off[ref_level], widths[ref_level], heights[ref_level],
-                             A_ref_cur, ref_u, ref_v, ref_level, 0, patch):
+    if lv > 0 and (warped[0] or warp_patch(ref_flat, off[ref_level], widths[ref_level],
+                                           heights[ref_level], A_ref_cur, ref_u, ref_v,
+                                           ref_level, 0, patches[0])):
         # a last sub-pixel step at full resolution
-        uf, vf, ok = align2d(cur_flat, off[0], widths[0], heights[0], patch, u0, v0,
+        uf, vf, ok = align2d(cur_flat, off[0], widths[0], heights[0], patches[0], u0, v0,
                              iterations)
         if ok and (uf - u0) ** 2 + (vf - v0) ** 2 < 4.0:
             u0, v0 = uf, vf

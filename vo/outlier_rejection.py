@@ -14,7 +14,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from vo.se3 import exp_se3, plane_jacobian, transform
+from vo.normal_equations import solve_spd
+from vo.se3 import compose, exp_se3, plane_jacobian, transform
 
 SUBSET = 5
 HYPOTHESIS_ITERATIONS = 5
@@ -57,11 +58,10 @@ def fit_subset(pos_w, obs, scale, subset, T_prior, iterations):
                 b[a] += s * (J[0, a] * ex + J[1, a] * ey)
                 for q in range(6):
                     H[a, q] += s * s * (J[0, a] * J[0, q] + J[1, a] * J[1, q])
-        try:
-            xi = np.linalg.solve(H, b)
-        except Exception:  # a degenerate subset (numba catches no narrower class): no fit
+        det, xi = solve_spd(H, b)
+        if det == 0.0:  # a degenerate subset: no fit
             break
-        T = exp_se3(xi) @ T
+        T = compose(exp_se3(xi), T)
         if np.sqrt(xi @ xi) < 1e-12:
             break
     return T
@@ -100,6 +100,29 @@ def ransac(pos_w, obs, scale, T_prior, subsets, threshold, p):
 
 
 def random_subsets(n: int, count: int, seed: int) -> np.ndarray:
-    """`count` rows of SUBSET distinct match indices in 0..n-1, from a seeded generator."""
-    rng = np.random.default_rng(seed)
-    return np.ascontiguousarray(rng.random((count, n)).argpartition(SUBSET, axis=1)[:, :SUBSET])
+    """`count` rows of SUBSET distinct match indices in 0..n-1, from a seeded generator: each
+    row the positions of the SUBSET smallest of n uniform draws (a random subset)."""
+    return _smallest(np.random.default_rng(seed).random((count, n)), SUBSET)
+
+
+@numba.njit(cache=True, nogil=True)
+def _smallest(values, k):
+    """Per row of values, the indices of its k smallest entries, smallest first."""
+    out = np.empty((values.shape[0], k), dtype=np.int64)
+    for r in range(values.shape[0]):
+        row = values[r]
+        for j in range(k):  # insertion into the sorted first j
+            out[r, j] = j
+            i = j
+            while i > 0 and row[out[r, i - 1]] > row[out[r, i]]:
+                out[r, i - 1], out[r, i] = out[r, i], out[r, i - 1]
+                i -= 1
+        for c in range(k, row.shape[0]):
+            if row[c] >= row[out[r, k - 1]]:
+                continue
+            i = k - 1
+            while i > 0 and row[out[r, i - 1]] > row[c]:
+                out[r, i] = out[r, i - 1]
+                i -= 1
+            out[r, i] = c
+    return out

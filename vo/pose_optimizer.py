@@ -7,7 +7,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from vo.se3 import adjoint, exp_se3, inv_se3, log_so3, plane_jacobian, skew, transform
+from vo.normal_equations import solve_spd
+from vo.se3 import adjoint, compose, exp_se3, inv_se3, log_so3, plane_jacobian, skew, transform
 
 TUKEY_C = 4.6851
 MAD_TO_SIGMA = 1.4826
@@ -20,10 +21,15 @@ def depth_whitening(T_c_w, kf_T_c_w, host, f, rho, sigma, pixel_sigma):
     1 / sqrt(1 + (spread / pixel_sigma)^2); across it the weight stays 1."""
     n = host.shape[0]
     A = np.zeros((n, 2, 2))
+    T_slot = np.empty((kf_T_c_w.shape[0], 4, 4))  # T_c_w times each slot's inverse, on use
+    have = np.zeros(kf_T_c_w.shape[0], dtype=np.bool_)
     for i in range(n):
         A[i, 0, 0] = 1.0
         A[i, 1, 1] = 1.0
-        T = T_c_w @ inv_se3(kf_T_c_w[host[i]])
+        if not have[host[i]]:
+            T_slot[host[i]] = compose(T_c_w, inv_se3(kf_T_c_w[host[i]]))
+            have[host[i]] = True
+        T = T_slot[host[i]]
         near = rho[i] + sigma[i]
         far = max(rho[i] - sigma[i], 1e-6)
         X1, Y1, Z1 = transform(T, f[i, 0] / near, f[i, 1] / near, f[i, 2] / near)
@@ -111,10 +117,10 @@ def optimize_pose(pos_w, obs, level, whiten, T_c_w, iterations, sigma_floor, R_p
             for a in range(3):
                 H[3 + a, 3 + a] += w_r
                 b[3 + a] += w_r * e_r[a]
-        if abs(np.linalg.det(H)) < 1e-30:
+        det, xi = solve_spd(H, b)
+        if abs(det) < 1e-30:
             break
-        xi = np.linalg.solve(H, b)
-        T = exp_se3(xi) @ T
+        T = compose(exp_se3(xi), T)
         _residuals(pos_w, obs, scale, whiten, T, err)
         if np.sqrt(xi @ xi) < 1e-10:
             break
@@ -132,11 +138,17 @@ def pose_covariance(H: np.ndarray, sigma: float, T_w_c: np.ndarray) -> np.ndarra
     the world origin (a drone at 6 m over a map started at 1.5 m) the rotation's share of the
     position error is what matters, so it is folded in here."""
     try:
-        cov_c = np.linalg.inv(H) * sigma * sigma
+        cov = _covariance(np.ascontiguousarray(H, dtype=np.float64), float(sigma),
+                          np.ascontiguousarray(T_w_c, dtype=np.float64))
     except np.linalg.LinAlgError:
         return None
-    if not np.all(np.isfinite(cov_c)):
-        return None
+    return cov if np.all(np.isfinite(cov)) else None
+
+
+@numba.njit(cache=True, nogil=True)
+def _covariance(H, sigma, T_w_c):
+    """pose_covariance's matrices (non-finite where H is near singular)."""
+    cov_c = np.linalg.inv(H) * sigma * sigma
     J = adjoint(T_w_c)  # camera-frame twist -> left perturbation of T_w_c
     J[:3] -= skew(np.ascontiguousarray(T_w_c[:3, 3])) @ J[3:]  # -> (position, rotation)
     cov = J @ cov_c @ J.T

@@ -12,7 +12,7 @@ from vo.frame import Frame
 from vo.map import Map
 from vo.matcher import match_direct, match_epipolar
 from vo.orb import OrbQuery, query
-from vo.se3 import inv_se3, transform
+from vo.se3 import compose, inv_se3, transform
 
 
 @numba.njit(cache=True, nogil=True)
@@ -65,14 +65,17 @@ def closest_views(params, idx, pos_w, hosts, host_only, obs, kf_T_c_w, cur_centr
                 o = order[start[p] + j]
                 s, u, v, lv = obs_kf[o], obs_uv[o, 0], obs_uv[o, 1], obs_level[o]
             T = kf_T_c_w[s]
-            R = np.ascontiguousarray(T[:3, :3])  # a contiguous operand for BLAS
-            X = R @ P + T[:3, 3]
-            r = X @ R  # ray from the keyframe centre to P, in the world
-            c = (r @ rc) / max(np.sqrt(r @ r), 1e-12)
+            X0, X1, X2 = transform(T, P[0], P[1], P[2])
+            # ray from the keyframe centre to P, in the world
+            r0 = X0 * T[0, 0] + X1 * T[1, 0] + X2 * T[2, 0]
+            r1 = X0 * T[0, 1] + X1 * T[1, 1] + X2 * T[2, 1]
+            r2 = X0 * T[0, 2] + X1 * T[1, 2] + X2 * T[2, 2]
+            c = (r0 * rc[0] + r1 * rc[1] + r2 * rc[2]) / max(
+                np.sqrt(r0 * r0 + r1 * r1 + r2 * r2), 1e-12)
             if c > best:
                 best = c
                 slot[k], uv[k, 0], uv[k, 1], level[k] = s, u, v, lv
-                depth[k] = np.sqrt(X @ X)
+                depth[k] = np.sqrt(X0 * X0 + X1 * X1 + X2 * X2)
         f[k, 0], f[k, 1], f[k, 2] = unproject_pixel(params, uv[k, 0], uv[k, 1])
     return slot, uv, level, f, depth
 
@@ -115,6 +118,9 @@ def match_in_cells(params, T_c_w, cands, keyframes, layout, cur_flat, corners, s
     out_uv = np.empty((n, 2))
     out_level = np.empty(n, dtype=np.int64)
     use_orb = orb[0] >= 0
+    # T_cur_ref per keyframe slot, computed on its first use
+    T_slot = np.empty((kf_T_c_w.shape[0], 4, 4))
+    have = np.zeros(kf_T_c_w.shape[0], dtype=np.bool_)
     m = 0
     for k in order:
         if m >= max_matches:
@@ -123,7 +129,10 @@ def match_in_cells(params, T_c_w, cands, keyframes, layout, cur_flat, corners, s
         if done[c] or tried[k] or waiting[c] >= lookahead:
             continue
         s = host[k]
-        T_cur_ref = T_c_w @ inv_se3(kf_T_c_w[s])
+        if not have[s]:
+            T_slot[s] = compose(T_c_w, inv_se3(kf_T_c_w[s]))
+            have[s] = True
+        T_cur_ref = T_slot[s]
         ref_obs = (huv[k, 0], huv[k, 1], hlevel[k], f[k])
         pending = orb[8][0]
         u = v = 0.0
@@ -201,7 +210,7 @@ class Reprojector:
         corners = _NO_CORNERS
         c = None
         if cands[-2].any() or cfg.track_search_fallback or use_orb:
-            c = frame.corners(cfg.fast_threshold, cfg.track_corner_level)
+            c = frame.corners(cfg.fast_threshold, cfg.track_corner_level, cfg.match_max_level)
             corners = c.tables
         pts = map_.points
         if use_orb:

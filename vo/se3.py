@@ -14,22 +14,43 @@ def skew(w):
 
 @numba.njit(cache=True, nogil=True)
 def exp_se3(xi):
-    """The transform exp(xi) for a twist xi = (v, w)."""
-    v = xi[:3]
-    w = xi[3:]
-    theta = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
-    W = skew(w)
-    W2 = W @ W
+    """The transform exp(xi) for a twist xi = (v, w) (entry by entry: the kernels' hot loops
+    call it, and 3x3 products through BLAS cost more than the arithmetic)."""
+    v0, v1, v2, w0, w1, w2 = xi[0], xi[1], xi[2], xi[3], xi[4], xi[5]
+    theta = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
     if theta < 1e-8:
         a, b, c = 1.0, 0.5, 1.0 / 6.0
     else:
         a = np.sin(theta) / theta
         b = (1.0 - np.cos(theta)) / (theta * theta)
         c = (theta - np.sin(theta)) / (theta * theta * theta)
+    # W = skew(w), W2 = W @ W = w w^T - theta^2 I
+    W = np.array([[0.0, -w2, w1], [w2, 0.0, -w0], [-w1, w0, 0.0]])
+    W2 = np.empty((3, 3))
+    wv = (w0, w1, w2)
+    for i in range(3):
+        for j in range(3):
+            W2[i, j] = wv[i] * wv[j] - (theta * theta if i == j else 0.0)
     T = np.eye(4)
-    T[:3, :3] = np.eye(3) + a * W + b * W2
-    T[:3, 3] = (np.eye(3) + b * W + c * W2) @ v
+    for i in range(3):
+        for j in range(3):
+            eye = 1.0 if i == j else 0.0
+            T[i, j] = eye + a * W[i, j] + b * W2[i, j]
+        T[i, 3] = ((1.0 if i == 0 else 0.0) + b * W[i, 0] + c * W2[i, 0]) * v0 + (
+            (1.0 if i == 1 else 0.0) + b * W[i, 1] + c * W2[i, 1]) * v1 + (
+            (1.0 if i == 2 else 0.0) + b * W[i, 2] + c * W2[i, 2]) * v2
     return T
+
+
+@numba.njit(cache=True, nogil=True)
+def compose(A, B):
+    """A @ B for rigid transforms (bottom rows 0 0 0 1), entry by entry."""
+    out = np.eye(4)
+    for i in range(3):
+        for j in range(4):
+            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
+        out[i, 3] += A[i, 3]
+    return out
 
 
 def left_jacobian(xi: np.ndarray) -> np.ndarray:
@@ -62,10 +83,10 @@ def left_jacobian(xi: np.ndarray) -> np.ndarray:
 def inv_se3(T):
     """The inverse of a rigid transform."""
     out = np.eye(4)
-    R = T[:3, :3]
-    out[:3, :3] = R.T
-    # contiguous operands for BLAS (what numba would copy them to anyway)
-    out[:3, 3] = -(np.ascontiguousarray(R.T) @ np.ascontiguousarray(T[:3, 3]))
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = T[j, i]
+        out[i, 3] = -(T[0, i] * T[0, 3] + T[1, i] * T[1, 3] + T[2, i] * T[2, 3])
     return out
 
 
@@ -97,9 +118,10 @@ def plane_jacobian(X, Y, Z, J):
     J[1, 5] = x
 
 
-def adjoint(T: np.ndarray) -> np.ndarray:
+@numba.njit(cache=True, nogil=True)
+def adjoint(T):
     """6x6 adjoint of T for twists (v, w): exp(Ad xi) T = T exp(xi)."""
-    R = T[:3, :3]
+    R = np.ascontiguousarray(T[:3, :3])
     out = np.zeros((6, 6))
     out[:3, :3] = R
     out[:3, 3:] = skew(np.ascontiguousarray(T[:3, 3])) @ R
@@ -122,9 +144,12 @@ def rotation_angle_deg(R: np.ndarray) -> float:
     return float(np.degrees(np.arccos(c)))
 
 
-def orthonormalized(T: np.ndarray) -> np.ndarray:
+@numba.njit(cache=True, nogil=True)
+def orthonormalized(T):
     """T with its rotation block projected back onto SO(3) (removes round-off drift)."""
-    U, _, Vt = np.linalg.svd(T[:3, :3])
+    U, _, Vt = np.linalg.svd(np.ascontiguousarray(T[:3, :3]))
+    D = np.eye(3)
+    D[2, 2] = np.linalg.det(U @ Vt)
     out = T.copy()
-    out[:3, :3] = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    out[:3, :3] = U @ D @ Vt
     return out

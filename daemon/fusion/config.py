@@ -10,7 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from sdvl.errors import InputError
+from daemon.fusion.config_limits import LIMITS
+from sdvl.tables import check_limits
 
 
 @dataclass(frozen=True)
@@ -154,41 +155,5 @@ class FusionConfig:
     rate_std_rad_s: float = 0.05
 
     def check(self, path: Path | None = None) -> None:
-        """InputError naming the first setting that makes no sense (in config file `path`)."""
-        positive = ("scale_std_max", "heading_std_max_deg", "progress_interval_s",
-                    "publish_max_std_m", "rest_velocity_std", "rest_window_s", "rest_accel_tol",
-                    "rest_gyro_tol", "flight_state_timeout_s",
-                    "scale_prior_std", "initial_scale", "start_velocity_std",
-                    "map_depth_units", "range_scale_prior_std",
-                    "coarse_scale_std", "nav_scale_std", "vo_position_std_m",
-                    "vo_rotation_std_deg", "vo_covariance_factor", "reanchor_distance_m",
-                    "vo_tilt_error_std_deg", "vo_error_time_s",
-                    "attitude_std_deg", "heading_std_deg",
-                    "attitude_timeout_s", "accel_noise", "accel_bias_std", "imu_timeout_s",
-                    "motion_accel_std", "range_std_m", "baro_std_m", "gate_chi2_1dof",
-                    "terrain_relief_m", "terrain_correlation_m", "scene_height_std_fraction",
-                    "gate_chi2_3dof", "gate_chi2_6dof", "history_s", "clock_offset_window_s",
-                    "quality_good_std_m", "rate_std_rad_s", "climb_scale_min_m",
-                    "time_offset_std_s")
-        for key in positive:
-            if not getattr(self, key) > 0:
-                raise InputError(f"fusion.{key} must be > 0", path)
-        non_negative = ("min_aligned_s", "heading_bias_std_deg", "vo_drift_m_per_sqrt_m",
-                        "vo_drift_climb_m_per_sqrt_m",
-                        "vo_drift_m_per_sqrt_s",
-                        "alignment_walk_deg_per_sqrt_m",
-                        "scale_walk_per_sqrt_m", "scale_walk_climb_per_sqrt_m",
-                        "accel_bias_walk", "range_std_fraction",
-                        "ground_walk_m_per_sqrt_m", "baro_walk_m_per_sqrt_s",
-                        "time_offset_walk_s_per_sqrt_s")
-        for key in non_negative:
-            if not getattr(self, key) >= 0:
-                raise InputError(f"fusion.{key} must be >= 0", path)
-        if not (self.inflate_insufficient >= 1 and self.inflate_bad >= 1
-                and self.coarse_inflation >= 1):
-            raise InputError("fusion.inflate_insufficient, inflate_bad and coarse_inflation "
-                             "must be >= 1", path)
-        if not 0 < self.range_max_tilt_deg < 90:
-            raise InputError("fusion.range_max_tilt_deg must be in (0, 90)", path)
-        if self.reset_after_rejections < 1:
-            raise InputError("fusion.reset_after_rejections must be >= 1", path)
+        """InputError naming the first setting out of its range (config_limits.py)."""
+        check_limits(self, "fusion", LIMITS, path)

@@ -113,7 +113,7 @@ class FusionEstimator:
         optical_axis = self.R_c_b.T[:, 2]  # in body FRD
         camera_down = optical_axis[2] >= np.cos(np.radians(cfg.range_max_tilt_deg))
         self.maps = MapFusion(cfg, self.filter, self.attitude, self.gate, self.readings,
-                              self._imu_fresh, camera_down)
+                              self._imu_fresh, self.imu_noise.density, camera_down)
 
     # --- the Estimator protocol ---------------------------------------------------------------
 

@@ -80,9 +80,10 @@ class MapFusion:
 
     def __init__(self, cfg: FusionConfig, nav: NavFilter, attitude: AttitudeTrack,
                  gate: AlignmentGate, readings: Readings, imu_fresh: Callable[[float], bool],
-                 camera_down: bool):
+                 imu_density: Callable[[], np.ndarray], camera_down: bool):
         self.cfg, self.filter, self.attitude, self.gate = cfg, nav, attitude, gate
         self.readings, self.imu_fresh, self.camera_down = readings, imu_fresh, camera_down
+        self.imu_density = imu_density  # the IMU stream's measured noise, per body axis
 
     def fuse(self, t: float, frame: FrameInput) -> None:
         """Fuse a tracker frame at the filter's time t: a new map starts (its anchor cloned from
@@ -158,7 +159,8 @@ class MapFusion:
         if f.converged or not self.imu_fresh(t):
             f.motion.interrupt()  # nothing left to fit, or no IMU to fit
             return
-        f.motion.add_frame(t, frame.p_w, f.R_nom)
+        f.motion.add_frame(t, frame.p_w, f.R_nom,
+                           float(np.sqrt(np.mean(np.square(self.imu_density())))))
         fit = f.motion.fit()
         if att is None or fit is None or not fit[1] <= cfg.coarse_scale_std:
             return

@@ -192,6 +192,8 @@ class AutopilotModel(ABC):
             self._predict(now, behind - IMU_DT)  # a starved thread: one long step, not a backlog
         while now - self._last_step >= IMU_DT:
             self._predict(self._last_step + IMU_DT, IMU_DT)
+        if self.flies:
+            self.fly_ahead(now - self._last_step)
         for name in self.schedule.due(now):
             self._send_stream(name, now)
 
@@ -207,6 +209,11 @@ class AutopilotModel(ABC):
         else:
             reading = self.sensing.read(self.vehicle, self.uptime(t), dt)
         self.estimator_step(t, reading, dt)
+
+    def fly_ahead(self, elapsed: float) -> None:
+        """Run the fast loops due `elapsed` s into the estimator's next step (firmwares whose
+        vehicle can fly)."""
+        raise NotImplementedError(f"{type(self).__name__} has no flight controllers")
 
     def fly(self, dt: float) -> Reading:
         """Run the firmware's fast loop (sensors, attitude control, motors, physics) for dt and

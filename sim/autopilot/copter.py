@@ -188,6 +188,9 @@ class ArduCopterModel(AutopilotModel):
             if self.flying.flight.disarm_request is not None:
                 self._disarm(now, self.flying.flight.disarm_request)
 
+    def fly_ahead(self, elapsed: float) -> None:
+        self.flying.fly_ahead(elapsed)
+
     def fly(self, dt: float) -> Reading:
         return self.flying.fly(dt)
 

@@ -41,8 +41,9 @@ def instrument(link: VirtualLink) -> dict[str, list[float]]:
     """Time the model's stages per call (a benchmark's own wrappers)."""
     stages: dict[str, list[float]] = defaultdict(list)
     model = link.model
-    model._predict = timed(stages["20 ms step, all of it"], model._predict)
-    model.flying.fly = timed(stages["400 Hz loop (8 per step)"], model.flying.fly)
+    model._predict = timed(stages["20 ms step, EKF and modes"], model._predict)
+    model.flying._run_loops = timed(stages["400 Hz loops, per call"],
+                                    model.flying._run_loops)
     model.ekf.step = timed(stages["EKF3 stand-in"], model.ekf.step)
     model.flying.after_estimator = timed(stages["flight modes"], model.flying.after_estimator)
     return stages

@@ -45,16 +45,32 @@ class FlyingCopter:
         self.sensors.calibrate_baro()
         self.flight = CopterFlight(params, self.sensors)
         self.params = params
+        self._loops = 0  # fast loops already run of the step in progress
+
+    def fly_ahead(self, elapsed: float) -> None:
+        """Run the fast loops of the step in progress that are due `elapsed` s into it, so the
+        vehicle is where it is now, not where it was at the last 50 Hz step (a camera frame
+        taken between steps saw it up to 20 ms early)."""
+        self._run_loops(int(elapsed * FAST_LOOP_HZ + 1e-9), 1.0 / FAST_LOOP_HZ)
 
     def fly(self, dt: float) -> Reading:
-        """Run the 400 Hz loop for dt (sensors, control, motors, physics); the estimator's
-        reading for the step."""
-        steps = max(round(dt * FAST_LOOP_HZ), 1)
-        for _ in range(steps):
-            self.sensors.tick()
-            self.vehicle.advance(dt / steps, self.flight.fast(dt / steps))
+        """Run the rest of the 400 Hz loop for the step of dt (sensors, control, motors,
+        physics); the estimator's reading for the step."""
+        steps = self._steps(dt)
+        self._run_loops(steps, dt / steps)
+        self._loops = 0
         self.vehicle.mark()
         return self.sensors.reading()
+
+    @staticmethod
+    def _steps(dt: float) -> int:
+        return max(round(dt * FAST_LOOP_HZ), 1)
+
+    def _run_loops(self, until: int, dt: float) -> None:
+        while self._loops < until:
+            self._loops += 1
+            self.sensors.tick()
+            self.vehicle.advance(dt, self.flight.fast(dt))
 
     def after_estimator(self, ekf: object, position_ok: bool, now: float, dt: float) -> None:
         """The 50 Hz flight step on the estimate just made; EKF3 learns the ground-effect

@@ -25,6 +25,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                                  "errors beyond 3 sigma, recovery")
     scenarios.add_argument("names", nargs="*", metavar="NAME",
                            help=f"scenarios (default all): {', '.join(SCENARIOS)}")
+    scenarios.add_argument("--window", nargs=2, type=float, default=(30.0, 40.0),
+                           metavar=("FROM", "TO"), help="the fault's seconds of the flight "
+                           "(default 30 40; some scenarios have their own length)")
     fuzz = sub.add_parser("fuzz", help="seeded fuzzed/mutated packets, scores summed")
     fuzz.add_argument("--packets", type=int, default=100_000,
                       help="fuzzed or mutated packets to send (default 100000)")
@@ -95,8 +98,10 @@ def _scenarios(args: argparse.Namespace) -> int:
         raise InputError(f"unknown scenario '{unknown[0]}': one of {', '.join(SCENARIOS)}")
     _quiet()
     flight = fusion_sim.simulate(seed=args.seed)
+    if not 0 <= args.window[0] < args.window[1]:
+        raise InputError("--window FROM TO: 0 <= FROM < TO (seconds of the flight)")
     scores = run_scenarios(flight, args.names or list(SCENARIOS), args.seed,
-                           filtered=not args.unfiltered)
+                           tuple(args.window), filtered=not args.unfiltered)
     _print_scores(scores, args.json)
     return 0
 
@@ -145,18 +150,26 @@ def _soak(args: argparse.Namespace) -> int:
     result = soak(sequence, args.minutes, trace_from_min=args.tracemalloc_from)
     ten = result.rss_at(min(10.0, args.minutes))
     end = result.samples[-1][1] if result.samples else float("nan")
+    first = result.peak(0.0, min(10.0, args.minutes))
+    last = result.peak(max(0.0, args.minutes - 10.0), args.minutes)
     summary = {"preset": args.preset, "minutes": args.minutes, "rss_10min_mb": ten,
                "rss_end_mb": end, "growth_after_10min": end / ten - 1.0,
+               "peak_first_10min_mb": first, "peak_last_10min_mb": last,
                "frames_offered": result.frames_offered, "frames_tracked": result.frames_tracked,
-               "sent": result.sent, "exit_code": result.exit_code, "samples": result.samples}
+               "sent": result.sent, "exit_code": result.exit_code,
+               "warnings": dict(result.warnings), "samples": result.samples}
     if args.json:
         print(json.dumps(summary))
         return result.exit_code
     print(f"soak {args.preset}{' ' + args.size if args.size else ''} {args.minutes:g} min: "
           f"RSS {ten:.0f} MB at 10 min (or the end of a shorter run), {end:.0f} MB at the end "
           f"({100 * (end / ten - 1):+.1f}%)")
+    print(f"  highest RSS in the first 10 minutes {first:.0f} MB, in the last 10 {last:.0f} MB "
+          f"({100 * (last / first - 1):+.1f}%)")
     print(f"  frames offered {result.frames_offered}, tracked {result.frames_tracked}, vision "
           f"messages sent {result.sent}, exit code {result.exit_code}")
+    print("  warnings and errors logged: " + (", ".join(
+        f"{name} {n}" for name, n in sorted(result.warnings.items())) or "none"))
     print("  RSS (MB) by minute: " + ", ".join(f"{m}: {r:.0f}" for m, r in result.per_minute()))
     for line in result.top_growth:
         print("  grew " + line)

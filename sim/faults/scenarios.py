@@ -9,6 +9,7 @@ is whether the service and the fusion believe them.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -42,10 +43,9 @@ def flight_time(item: Item) -> float:
     return item.arrival - fusion_sim.BOOT_OFFSET
 
 
-def heartbeat() -> object:
+def heartbeat(status: int = mavlink2.MAV_STATE_ACTIVE) -> object:
     return mavlink2.MAVLink_heartbeat_message(
-        mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0,
-        mavlink2.MAV_STATE_ACTIVE, 3)
+        mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, status, 3)
 
 
 def clean_items(flight: fusion_sim.Flight) -> list[Item]:
@@ -163,6 +163,45 @@ def odd_stamps(seconds: float, count: int = 5) -> Callable:
     return make
 
 
+def landed_while_flying(flight, rng, window):
+    """The autopilot says the vehicle is disarmed and on the ground while it flies: every
+    HEARTBEAT with ArduCopter's STANDBY and every EXTENDED_SYS_STATE ON_GROUND (an autopilot
+    never armed says so; the soak's did for an hour)."""
+    items = clean_items(flight)
+    landed = mavlink2.MAVLink_extended_sys_state_message(
+        mavlink2.MAV_VTOL_STATE_UNDEFINED, mavlink2.MAV_LANDED_STATE_ON_GROUND)
+    changed = _during(items, window, ("HEARTBEAT", "EXTENDED_SYS_STATE"))
+    for i in changed:
+        items[i].msg = (landed if items[i].msg.get_type() == "EXTENDED_SYS_STATE"
+                        else heartbeat(mavlink2.MAV_STATE_STANDBY))
+    return to_stream(flight, items, window, len(changed))
+
+
+STARVED_READ_S = 1.0  # a starved companion's loop reads the link this seldom
+STARVED_FRAME_EVERY = 30  # its tracker finishes one frame in this many (1 fps at 30 fps)
+STARVED_DELAY_S = 1.0  # that long after the frame's capture
+
+
+def cpu_starved(flight, rng, window):
+    """The companion's CPU starved during the window (one core shared with six busy loops):
+    its loop reads the link once a second (the packets come in bursts, in order) and its
+    tracker finishes one frame in STARVED_FRAME_EVERY, STARVED_DELAY_S after its capture."""
+    start, end = (w + fusion_sim.BOOT_OFFSET for w in window)
+    packets = [Packet(min(float(np.ceil(p.arrival / STARVED_READ_S)) * STARVED_READ_S, end)
+                      if start <= p.arrival < end else p.arrival, p.data)
+               for p in clean_packets(flight)]
+    frames, starved = [], 0
+    for ready, result, t_capture in flight.frames:
+        if start <= t_capture < end:
+            starved += 1
+            if starved % STARVED_FRAME_EVERY:
+                continue
+            ready = t_capture + STARVED_DELAY_S
+        frames.append((ready, result, t_capture))
+    return Stream(dataclasses.replace(flight, frames=sorted(frames, key=lambda f: f[0])),
+                  sorted(packets, key=lambda p: p.arrival), window, 0)
+
+
 def garbage(flight, rng, window):
     """1 MB of random bytes spread over the window, between the packets."""
     items = clean_items(flight)
@@ -272,6 +311,8 @@ SCENARIOS: dict[str, Callable] = {
     "stray-highres-imu": stray_highres,
     "false-reboot-10s-back": odd_stamps(-10.0),
     "false-reboot-60s-ahead": odd_stamps(60.0),
+    "landed-while-flying": landed_while_flying,
+    "cpu-starved": cpu_starved,
     "garbage-1mb": garbage,
     "link-loss-5s": link_loss,
     "reboot": reboot,

@@ -13,12 +13,14 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import logging
 import os
 import tempfile
 import threading
 import time
 import tracemalloc
-from dataclasses import dataclass
+from collections import Counter
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +39,7 @@ from sim.replay.flight import (
     vehicle_trajectory,
 )
 from sim.replay.harness import ReplaySource, warm_up
+from sim.replay.preflight import WithPreflight
 from sim.replay.prerender import prerendered
 from sim.replay.replay_run import FirstFrames
 from sim.sequence import ImuSamples, Sequence
@@ -106,10 +109,17 @@ class SoakResult:
     sent: int
     exit_code: int
     top_growth: list[str]
+    warnings: Counter = field(default_factory=Counter)  # logger name -> warnings and errors
 
     def rss_at(self, minute: float) -> float:
         """The sample nearest to `minute`."""
         return min(self.samples, key=lambda s: abs(s[0] - minute))[1]
+
+    def peak(self, start_min: float, end_min: float) -> float:
+        """The highest sample from `start_min` to `end_min` (a trimmed heap follows the map
+        as it fills and restarts, so one sample is as high as the map was then)."""
+        return max((rss for minute, rss in self.samples if start_min <= minute <= end_min),
+                   default=float("nan"))
 
     def per_minute(self) -> list[tuple[int, float]]:
         """The first sample at or after each whole minute."""
@@ -117,6 +127,17 @@ class SoakResult:
         for minute, rss in self.samples:
             out.setdefault(int(minute), rss)
         return sorted(out.items())
+
+
+class _Warnings(logging.Handler):
+    """Counts the service's warnings and errors by logger while the soak runs."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.counts: Counter = Counter()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.counts[record.name] += 1
 
 
 class _Sampler(threading.Thread):
@@ -148,12 +169,15 @@ def _serve_service(sequence: Sequence, config: Config, frames: int,
     make_tracker = tracker_factory(config, sequence.camera)
     warm_up(make_tracker, sequence)
     flight = vehicle_trajectory(sequence.groundtruth, config, sequence.extras.get("T_ned_world"))
+    # armed after a pre-flight on the ground, as `sdvl replay` flies: a disarmed autopilot
+    # says it is landed, and the fusion would hold a flying vehicle still
     autopilot = AutopilotProcess(SimOptions(streams=sensor_streams("ardupilot", flight)),
                                  resampled(flight), body_imu(sequence),
-                                 sequence.extras.get("sensors"))
+                                 sequence.extras.get("sensors"), arm=True)
     try:
         config = replace(config, mavlink={"link": autopilot.url})
-        source = ReplaySource(FirstFrames(sequence, frames), True, 0.0, autopilot.frame_released)
+        source = ReplaySource(WithPreflight(FirstFrames(sequence, frames)), True, 0.0,
+                              autopilot.frame_released)
         service = Service(config, source, make_tracker)
         prefer_handoffs()
         sampler.start()
@@ -177,8 +201,12 @@ def soak(sequence: Sequence, minutes: float, config: Config | None = None,
         frames = int(np.searchsorted(looped.timestamps, looped.timestamps[0] + minutes * 60))
         if trace_from_min is not None:
             tracemalloc.start(10)
-        sampler = _Sampler(trace_from_min)
-        code, service = _serve_service(looped, config or Config(), frames, sampler)
+        sampler, warnings = _Sampler(trace_from_min), _Warnings()
+        logging.getLogger("sdvl").addHandler(warnings)
+        try:
+            code, service = _serve_service(looped, config or Config(), frames, sampler)
+        finally:
+            logging.getLogger("sdvl").removeHandler(warnings)
     growth = []
     if sampler.first_snapshot is not None:
         stats = tracemalloc.take_snapshot().compare_to(sampler.first_snapshot, "traceback")
@@ -186,4 +214,4 @@ def soak(sequence: Sequence, minutes: float, config: Config | None = None,
                                  *s.traceback.format()[-6:]]) for s in stats[:12]]
         tracemalloc.stop()
     return SoakResult(sampler.samples, service.source.offered, service.stats.frames,
-                      service.stats.sent, code, growth)
+                      service.stats.sent, code, growth, warnings.counts)

@@ -3,9 +3,11 @@ builds it: capture and tracking threads, mapping thread, asyncio link) flies the
 the simulated ArduCopter in its own process on the wall clock (CLOCK_MONOTONIC), over UDP, so
 threads, the link and the machine's load are real and the latency is measured, not configured.
 
-The camera is a frame source that, at the camera rate, reads the vehicle's true pose from the
-autopilot's process (shared memory), stamps the frame then (exposure) and renders it; the
-rendering time is the camera's readout delay. `--load N` starts N busy processes beside it.
+The camera is a process of its own (camera_process.py) that, at the camera rate, reads the
+vehicle's true pose from the autopilot's process (shared memory), stamps the frame then
+(exposure), renders it (the rendering time is the camera's readout delay) and hands it to the
+service's capture thread. Camera and autopilot are hardware on a drone: their processes run at a
+raised priority, so the service competes only with the `--load N` busy processes beside it.
 """
 
 from __future__ import annotations
@@ -22,7 +24,6 @@ from collections.abc import Callable
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega
 
-from daemon.camera import Pacer
 from daemon.config import Config, replace
 from daemon.frames import Frame
 from daemon.run_command import tracker_factory
@@ -30,6 +31,13 @@ from daemon.service import Service
 from sim.autopilot.ports import UdpPort
 from sim.autopilot.streams import VISION_MESSAGES
 from sim.flight.autopilot_side import AutopilotSide
+from sim.flight.camera_process import (
+    FrameRing,
+    SharedCamera,
+    TruthShare,
+    camera_process,
+    raise_priority,
+)
 from sim.flight.flight_run import FlightRun, Timing
 from sim.flight.loop import flight_config
 from sim.flight.mission import Mission
@@ -42,56 +50,6 @@ WARMUP_FRAMES = 30  # enough for the map to start, so the mapping kernels are co
 WARMUP_HEIGHT_M = 3.0
 SELECT_S = 0.002
 POLL_S = 0.1
-
-
-class TruthShare:
-    """The vehicle's true pose (T_ned_body) and its time (s since boot), shared between
-    processes."""
-
-    def __init__(self, array: object | None = None) -> None:
-        self.array = (multiprocessing.get_context(START_METHOD).Array("d", 17) if array is None
-                      else array)
-
-    def write(self, t: float, T: np.ndarray) -> None:
-        with self.array.get_lock():
-            self.array[0] = t
-            self.array[1:] = T.ravel()
-
-    def read(self) -> tuple[float, np.ndarray]:
-        with self.array.get_lock():
-            values = np.array(self.array[:])
-        return float(values[0]), values[1:].reshape(4, 4)
-
-
-class RenderedCamera:
-    """A live FrameSource at `fps`: the world rendered at the vehicle's true pose (see the
-    module doc); t_source is seconds since the autopilot booted."""
-
-    live, finite = True, False
-    name = "rendered world"
-
-    def __init__(self, world: FlightWorld, truth: TruthShare, fps: float, boot: float,
-                 depth: bool = False):
-        self.world, self.truth, self.period, self.boot = world, truth, 1.0 / fps, boot
-        self.camera, self.depth = world.camera, depth
-        self.pacer = Pacer()
-        self.offered = 0
-
-    def open(self) -> None:
-        """Nothing to open: the world is in memory."""
-
-    def read(self) -> tuple:
-        """The next frame: exposed (the pose read) when it is due, then rendered (with the
-        depth camera's map as a fourth element when it has one)."""
-        self.offered += 1
-        t_capture = self.pacer.wait(self.offered * self.period)
-        _, T_ned_body = self.truth.read()
-        t = t_capture - self.boot
-        image, depth = self.world.frame(self.offered, t, T_ned_body, self.depth)
-        return (t, t_capture, image) if depth is None else (t, t_capture, image, depth)
-
-    def close(self) -> None:
-        """Nothing to release."""
 
 
 def warm_up(world: FlightWorld, make_tracker: Callable[[Frame], object]) -> None:
@@ -123,6 +81,7 @@ def _autopilot_process(conn: multiprocessing.connection.Connection, mission: Mis
     truth = TruthShare(truth_array)
     port = UdpPort()
     conn.send(port.url)
+    raise_priority("the simulated autopilot")
     conn.recv()  # the service is built: power on
     boot = time.monotonic()
     side = AutopilotSide(mission, world, seed, timing, without, 0.0,
@@ -165,6 +124,33 @@ async def _serve(service: Service, conn: multiprocessing.connection.Connection) 
     task.result()
 
 
+class CameraHardware:
+    """The camera process (camera_process.py) and the service's end of it."""
+
+    def __init__(self, ctx: object, world: FlightWorld, preset: str, seed: int,
+                 size: tuple[int, int] | None, depth: bool, truth: TruthShare, fps: float):
+        self.ring = FrameRing(world.camera.size[::-1], depth)
+        self.conn, child = ctx.Pipe()
+        self.process = ctx.Process(target=camera_process, name="sim-camera", daemon=True,
+                                   args=(child, preset, seed, size, depth, truth.array,
+                                         self.ring.memory.name, self.ring.header, fps))
+        self.process.start()
+        self.source = SharedCamera(self.conn, self.ring, world.camera)
+
+    def power_on(self, boot: float) -> None:
+        """Wait until the renderer is warm, then start exposing on the autopilot's clock."""
+        self.conn.recv()
+        self.conn.send(boot)
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self.conn.send("stop")
+        self.process.join(5.0)
+        if self.process.is_alive():
+            self.process.terminate()
+        self.ring.close()
+
+
 def fly_realtime(mission: Mission, config: Config, seed: int, size: tuple[int, int] | None,
                  without: tuple[str, ...], load: int = 0,
                  progress: str | None = None) -> FlightRun:
@@ -179,9 +165,11 @@ def fly_realtime(mission: Mission, config: Config, seed: int, size: tuple[int, i
     ctx = multiprocessing.get_context(START_METHOD)
     conn, child = ctx.Pipe()
     process = ctx.Process(target=_autopilot_process, name="sim-autopilot",
-                                      args=(child, mission, seed, size, without, truth.array,
-                                            timing, progress), daemon=True)
+                          args=(child, mission, seed, size, without, truth.array, timing,
+                                progress), daemon=True)
     process.start()
+    camera = CameraHardware(ctx, world, mission.world, seed, size, config.camera.depth, truth,
+                            timing.fps)
     busy = [ctx.Process(target=_busy, daemon=True) for _ in range(load)]
     for p in busy:
         p.start()
@@ -190,8 +178,8 @@ def fly_realtime(mission: Mission, config: Config, seed: int, size: tuple[int, i
         recorder = Recorder()
         conn.send("power on")
         boot = conn.recv()
-        source = RenderedCamera(world, truth, timing.fps, boot, config.camera.depth)
-        service = Service(service_config, source, make_tracker, on_tracked=recorder)
+        camera.power_on(boot)
+        service = Service(service_config, camera.source, make_tracker, on_tracked=recorder)
         cpu0, wall0 = time.process_time(), time.perf_counter()
         asyncio.run(_serve(service, conn))
         wall_s, cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0
@@ -202,12 +190,11 @@ def fly_realtime(mission: Mission, config: Config, seed: int, size: tuple[int, i
         for p in busy:
             p.terminate()
             p.join()
+        camera.close()
         process.join(5.0)
         if process.is_alive():
             process.terminate()
     return FlightRun(mission, seed, without, dataclasses.replace(timing, our_clock_s=boot),
-                     out["truth"],
-                     out["steps"], out["vision"], recorder.rows, out["record"],
+                     out["truth"], out["steps"], out["vision"], recorder.rows, out["record"],
                      out["viso_delay_ms"], out["compass"], realtime=True, wall_s=wall_s,
-                     cpu_s=cpu_s, load=load, offered=source.offered)
-
+                     cpu_s=cpu_s, load=load, offered=camera.source.offered)

@@ -150,16 +150,25 @@ def sample_texture(pixels, levels, n_levels, tex, x, y, lod):
 
 
 @numba.njit(cache=True, nogil=True)
-def overlay_sample(pixels, levels, n_levels, overlay, value, u, v, lod):
-    """`value` of the base texture at texel (u, v) blended with the overlay texture, sampled on
-    a grid scaled by overlay[2] and turned by overlay[3] rad: overlay = (base id, overlay id,
-    scale, angle, weight). Two tilings whose lattices never (nearly) coincide make a pattern
-    that does not repeat at flight scale although each texture does."""
-    k, ca, sa = overlay[2], math.cos(overlay[3]), math.sin(overlay[3])
-    over = sample_texture(pixels, levels, n_levels, int(overlay[1]), k * (ca * u - sa * v),
-                          k * (sa * u + ca * v), lod + math.log2(k))
-    w = overlay[4]  # the contrast of the sum stays that of one texture
-    return 128.0 + math.sqrt(1.0 - w * w) * (value - 128.0) + w * (over - 128.0)
+def overlay_terms(overlay):
+    """What every pixel's `overlay_sample` needs of overlay = (base id, overlay id, scale,
+    angle, weight), computed once a frame: (scale, cos, sin, log2 scale, weight, base
+    weight); the trigonometry per pixel was a third of a frame's shading."""
+    k, w = overlay[2], overlay[4]
+    return (k, math.cos(overlay[3]), math.sin(overlay[3]), math.log2(k) if k > 0.0 else 0.0,
+            w, math.sqrt(1.0 - w * w))
+
+
+@numba.njit(cache=True, nogil=True)
+def overlay_sample(pixels, levels, n_levels, tex, terms, value, u, v, lod):
+    """`value` of the base texture at texel (u, v) blended with overlay texture `tex`, sampled
+    on a grid scaled and turned by `terms` (overlay_terms). Two tilings whose lattices never
+    (nearly) coincide make a pattern that does not repeat at flight scale although each texture
+    does."""
+    k, ca, sa, log2k, w, base_w = terms
+    over = sample_texture(pixels, levels, n_levels, tex, k * (ca * u - sa * v),
+                          k * (sa * u + ca * v), lod + log2k)
+    return 128.0 + base_w * (value - 128.0) + w * (over - 128.0)  # the contrast of one texture
 
 
 @numba.njit(cache=True, nogil=True)
@@ -194,6 +203,8 @@ def shade(rays, pixel_angle, R, c, geom, tex, gain, hit, pixels, levels, n_level
     factor, amplitude; amplitude 0 = none) adds finer structure, fading in over one mip level;
     quads with the overlay's base texture get a second texture on top (see `overlay_sample`)."""
     background, detail, overlay = look[0], look[1:4], look[4:9]
+    terms, base_tex, over_tex = overlay_terms(overlay), int(overlay[0]), int(overlay[1])
+    fine_lod = math.log2(detail[1]) if detail[1] > 0.0 else 0.0
     h, w = rays.shape[0], rays.shape[1]
     image = np.full((h, w), background, np.float32)
     for r in range(h):
@@ -212,12 +223,13 @@ def shade(rays, pixel_angle, R, c, geom, tex, gain, hit, pixels, levels, n_level
             u = a / texel + geom[q, 12]
             v = b / texel + geom[q, 13]
             value = sample_texture(pixels, levels, n_levels, tex[q], u, v, lod)
-            if tex[q] == int(overlay[0]):
-                value = overlay_sample(pixels, levels, n_levels, overlay, value, u, v, lod)
+            if tex[q] == base_tex:
+                value = overlay_sample(pixels, levels, n_levels, over_tex, terms, value, u, v,
+                                       lod)
             if lod < 0.0 and detail[2] > 0.0:
                 k = detail[1]
                 fine = sample_texture(pixels, levels, n_levels, int(detail[0]), u * k, v * k,
-                                      lod + math.log2(k))
+                                      lod + fine_lod)
                 value += min(-lod, 1.0) * detail[2] * (fine - 128.0)
             image[r, col] = gain[q] * value
     return image
