@@ -124,5 +124,12 @@ def test_points_seen_for_keyframes_count_grid_cells():
     m.points.status[ids] = CONVERGED
     cur = Frame(1, 0.1, image, cam, 3)
     cur.T_c_w = np.eye(4)
-    n_visible = Reprojector(cam, config).run(cur, m, ids, np.zeros(len(ids), bool))[3]
+    reprojector = Reprojector(cam, config)
+    n_visible = reprojector.run(cur, m, ids, np.zeros(len(ids), bool))[3]
     assert n_visible == 1 + len(spread)
+    # points not matched in kf_cell_max_unmatched frames in a row leave the count: a spread
+    # point's cell goes, the crowded cell stays while one of its points is still matched
+    m.points.n_unmatched[ids[-1]] = config.kf_cell_max_unmatched
+    m.points.n_unmatched[ids[:5]] = config.kf_cell_max_unmatched + 3
+    m.points.n_unmatched[ids[5]] = config.kf_cell_max_unmatched - 1
+    assert reprojector.run(cur, m, ids, np.zeros(len(ids), bool))[3] == len(spread)

@@ -141,6 +141,10 @@ class TrackerConfig:
     # keyframe came (hover-down 0.293 m); cells: kitti00 in one map, tum_fr1_rpy 722/723 in
     # one (RESULTS.md: tracker-kf-cells)
     kf_count_inliers: bool = False
+    # a point tried and not matched in this many tracked frames in a row no longer counts toward
+    # its cell (points on people who walked off still project there); 5 lost kitti00's map
+    # from one of six start frames (RESULTS.md: tracker-kf-cell-streak)
+    kf_cell_max_unmatched: int = 10
     max_keyframes: int = 30
     covisible_min_shared: int = 10
     # threaded mapping: at most this many tracked frames wait for (or are in) their mapping
