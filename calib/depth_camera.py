@@ -73,6 +73,11 @@ class DepthSpec:
                              "colour image's size (else set depth.registered: false)")
         return gate_range(depth, self.min_m, self.max_m)
 
+    def to_raw(self, depth: np.ndarray) -> np.ndarray:
+        """A registered depth map (float metres, 0 or NaN = none) as the 16-bit image in this
+        unit that `to_metres` reads back; depths beyond 65535 units saturate there."""
+        return np.clip(np.rint(np.nan_to_num(depth) / self.scale), 0, 65535).astype(np.uint16)
+
 
 def gate_range(depth: np.ndarray, min_m: float, max_m: float) -> np.ndarray:
     """`depth` with values outside [min_m, max_m] (max_m 0: no limit) and NaN set to 0."""

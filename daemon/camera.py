@@ -191,7 +191,7 @@ def need_depth(sequence: object) -> None:
     if not getattr(sequence, "has_depth", False):
         raise InputError(f"camera.depth is on but '{getattr(sequence, 'name', sequence)}' "
                          "has no depth maps (a depth.txt beside its frame list, or a "
-                         "synthetic preset); set camera.depth = false")
+                         "synthetic preset): add them or set camera.depth = false")
 
 
 def sequence_depth(sequence: object, index: int) -> np.ndarray | UnreadableDepth | None:
@@ -207,19 +207,21 @@ class RecordingSource(SequenceSource):
     """Recorded frames on disk (daemon/recordings.py) played as a camera. Each image is read
     when it is due; one that is missing or cannot be decoded is a FrameError, so the stream
     goes on with the next (a folder renamed during a run gives missing frames until it is
-    back)."""
+    back). With `depth`, its depth map (depth.txt) is read with it, as SequenceSource's."""
 
     sequence: Recording
 
     def open(self) -> None:
         if self._frames is None:
-            self._frames = zip(self.sequence.timestamps, self.sequence.files, strict=True)
+            self._frames = enumerate(zip(self.sequence.timestamps, self.sequence.files,
+                                         strict=True))
 
-    def read(self) -> tuple[float, float, np.ndarray] | None:
+    def read(self) -> tuple | None:
         item = next(self._frames, None)
         if item is None:
             return None
-        t, path = float(item[0]), item[1]
+        index, (t, path) = item
+        t = float(t)
         t_capture = self._pacer.wait(t) if self._pacer else time.monotonic()
         try:
             data = np.fromfile(path, np.uint8)
@@ -228,7 +230,9 @@ class RecordingSource(SequenceSource):
         image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
         if image is None:
             raise FrameError(BadFrame.UNREADABLE, str(path))
-        return t, t_capture, image
+        if not self.depth:
+            return t, t_capture, image
+        return t, t_capture, image, sequence_depth(self.sequence, index)
 
 
 class TestPatternSource:
@@ -280,9 +284,11 @@ class CaptureThread(threading.Thread):
 
     def __init__(self, source: FrameSource, slot: LatestSlot, backoff: tuple[float, float],
                  on_state: Callable[[Health], None] = lambda state: None,
-                 check: FrameCheck | None = None):
+                 check: FrameCheck | None = None,
+                 record: Callable[[Frame], None] | None = None):
         super().__init__(name="capture", daemon=True)
         self.source, self.slot, self.backoff = source, slot, backoff
+        self.record = record  # gets every accepted frame, also those tracking then drops
         self.on_state = on_state
         self.check = check or FrameCheck()
         self.stopping = threading.Event()
@@ -358,8 +364,10 @@ class CaptureThread(threading.Thread):
             if not self.check.check(t_source, image):
                 continue
             depth = self.check.depth(depth[0], image) if depth else None
-            if not self.slot.put(Frame(self.frames, t_source, t_capture, image, depth),
-                                 wait=not self.source.live):
+            frame = Frame(self.frames, t_source, t_capture, image, depth)
+            if self.record is not None:
+                self.record(frame)
+            if not self.slot.put(frame, wait=not self.source.live):
                 return True
             self.last_frame_t = time.monotonic()
             self.frames += 1

@@ -41,6 +41,9 @@ class CameraConfig:
     # the source's depth maps go to the tracker (a depth camera, a sequence with depth):
     # metric poses from the first frame; false: monocular even where depth is there
     depth: bool = False
+    # a folder: every accepted frame (and depth map) recorded in a new subfolder per start, in
+    # the layout a recorded folder plays back as camera.source; empty: no recording
+    record: str = ""
     reconnect_min_s: float = bounded(0.5, above=0, high=3600)
     reconnect_max_s: float = bounded(8.0, above=0, high=3600)
     # longer than a slow device's first frame (a few seconds), shorter than WatchdogSec

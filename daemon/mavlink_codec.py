@@ -7,6 +7,7 @@ exceptions; anything else it raises resets the parser rather than stopping the l
 from __future__ import annotations
 
 import logging
+import struct
 from collections.abc import Callable
 
 from pymavlink.dialects.v20 import common as mavlink2
@@ -37,14 +38,26 @@ class MavlinkCodec:
         self.on_message = on_message
         self.bad_frames = 0
         self.unknown = 0  # messages of the autopilot's dialect that common.xml does not define
+        self.unpackable = 0  # messages of ours not sent: a value beyond their fields' range
+        self._unpackable_logged: set[str] = set()
         self.parser_resets = 0
         self.mavlink1_seen = False
         self.sent: dict[str, int] = {}
 
     def send(self, msg: object) -> bool:
-        """Pack `msg` as MAVLink 2 and write it; True when the transport took it."""
-        self.mav.send(msg)
+        """Pack `msg` as MAVLink 2 and write it; True when the transport took it. A message
+        with a value its fields cannot carry (beyond float32 or an integer's range) is not
+        sent, counted and logged once per kind: a bug upstream, never a reason to stop."""
         name = msg.get_type()
+        try:
+            self.mav.send(msg)
+        except (struct.error, OverflowError, ValueError) as exc:
+            self.unpackable += 1
+            if name not in self._unpackable_logged:
+                self._unpackable_logged.add(name)
+                log.error("%s not sent: a value its fields cannot carry (%s); such messages "
+                          "are dropped and counted", name, exc)
+            return False
         self.sent[name] = self.sent.get(name, 0) + 1
         return self._sink.last_ok
 

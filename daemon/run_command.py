@@ -23,6 +23,7 @@ if TYPE_CHECKING:  # the real imports are slow and come after the signal handler
     from calib.camera import CameraModel
     from daemon.camera import FrameSource
     from daemon.config import CameraConfig, Config
+    from daemon.frame_recorder import FrameRecorder
     from daemon.frames import Frame
     from daemon.service import Service
 
@@ -66,6 +67,7 @@ def open_source(cfg: CameraConfig) -> FrameSource:
 
 def _named_source(cfg: CameraConfig) -> FrameSource:
     """The source camera.source names: test pattern, RealSense, recording folder or OpenCV."""
+    from calib.camera_yaml import load_camera
     from daemon.camera import OpenCVSource, RecordingSource, TestPatternSource
     from daemon.realsense import is_realsense
     from daemon.recordings import open_recording
@@ -74,8 +76,10 @@ def _named_source(cfg: CameraConfig) -> FrameSource:
         return TestPatternSource(cfg.width or 320, cfg.height or 240, cfg.fps)
     if is_realsense(cfg.source):
         return realsense_source(cfg)
-    if Path(cfg.source).is_dir():
-        return RecordingSource(open_recording(cfg.source, cfg.fps), realtime=cfg.realtime)
+    if Path(cfg.source).is_dir():  # its depth maps are registered to camera.calibration's
+        camera = load_camera(cfg.calibration) if cfg.calibration else None
+        return RecordingSource(open_recording(cfg.source, cfg.fps, camera),
+                               realtime=cfg.realtime, depth=cfg.depth)
     return OpenCVSource(cfg.source, cfg.width, cfg.height, cfg.fps, cfg.realtime)
 
 
@@ -123,6 +127,16 @@ def fit_camera(camera: CameraModel, width: int, height: int) -> CameraModel:
         raise InputError(f"frames are {width}x{height} but the calibration is "
                          f"{camera.width}x{camera.height}: calibrate at this size")
     return camera.scaled(factor)
+
+
+def frame_recorder(cfg: CameraConfig, camera: CameraModel) -> FrameRecorder | None:
+    """The recorder camera.record asks for (None: off), writing the frames' intrinsics."""
+    if not cfg.record:
+        return None
+    from daemon.frame_recorder import FrameRecorder
+
+    return FrameRecorder(Path(cfg.record), lambda width, height: fit_camera(camera, width,
+                                                                             height), cfg.depth)
 
 
 def tracker_factory(config: Config, camera: CameraModel) -> Callable[[Frame], object]:
@@ -196,7 +210,8 @@ def _start(args: argparse.Namespace, signals: EarlySignals, notifier: Notifier) 
     camera = camera_model(config.camera, source)
     numba_cache.prepare()
     service = Service(config, source, tracker_factory(config, camera), notifier=notifier,
-                      size_ok=lambda width, height: fit_camera(camera, width, height))
+                      size_ok=lambda width, height: fit_camera(camera, width, height),
+                      recorder=frame_recorder(config.camera, camera))
     prefer_handoffs()
     return asyncio.run(serve(service, signals, lambda: load_config(args.config)))
 

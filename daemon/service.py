@@ -29,6 +29,7 @@ from daemon.autopilot_watch import AutopilotWatch, Event
 from daemon.camera import CaptureThread, FrameSource
 from daemon.config import Config, changed_keys, replace
 from daemon.estimate import Estimator, PassThroughEstimator, VisionEstimate
+from daemon.frame_recorder import FrameRecorder
 from daemon.frames import BadFrame, Frame, FrameCheck, LatestSlot
 from daemon.health import Fault, Health, HealthCheck
 from daemon.heap import HeapTrim
@@ -48,6 +49,9 @@ HOUSEKEEPING_S = 0.05
 BRIDGE_AFTER_S = 0.12  # PX4 restarts vision fusion after 200 ms between samples (EV_MAX_INTERVAL)
 BRIDGE_MAX_S = 1.0  # a longer gap is an outage the autopilot's own failsafe must see
 THREAD_JOIN_S = 0.7
+# the recorder's queue (a second of frames) written at stop; with the threads' joins well under
+# systemd's TimeoutStopSec (5 s); the lists name only written images, so a cut-off end still plays
+RECORDER_FLUSH_S = 2.0
 # READY waits this long for a first usable frame, so a calibration that does not fit the frames
 # is reported (exit code 2) before systemd is told the service runs; well under TimeoutStartSec
 FIRST_FRAME_WAIT_S = 20.0
@@ -97,8 +101,10 @@ class Service:
                  make_tracker: Callable[[Frame], object], estimator: Estimator | None = None,
                  notifier: Notifier | None = None,
                  on_tracked: Callable[[TrackedFrame, bool], None] | None = None,
-                 size_ok: Callable[[int, int], None] | None = None):
+                 size_ok: Callable[[int, int], None] | None = None,
+                 recorder: FrameRecorder | None = None):
         self.cfg = config
+        self.recorder = recorder  # camera.record: the accepted frames written to disk
         self.source = source
         self.make_tracker = make_tracker
         self.estimator = estimator or self._default_estimator()
@@ -157,6 +163,8 @@ class Service:
         if not self.source.live:  # a replay as fast as possible must not outrun the link
             while not self.link.connected and not self._stop.is_set():
                 await asyncio.sleep(HOUSEKEEPING_S)
+        if self.recorder is not None:
+            self.recorder.start()
         self.capture.start()
         self.tracking.start()
         tasks = [asyncio.create_task(coro) for coro in (self._heartbeats(), self._housekeeping())]
@@ -177,7 +185,8 @@ class Service:
                            on_first_bad=lambda kind: self._from_thread(self._bad_frames, kind))
         self.capture = CaptureThread(self.source, slot, backoff,
                                      on_state=lambda s: self._from_thread(self._set_state, s),
-                                     check=check)
+                                     check=check,
+                                     record=self.recorder.offer if self.recorder else None)
         self.tracking = TrackingThread(slot, self.make_tracker, self.estimator,
                                        deliver=lambda tf: self._from_thread(self._on_tracked, tf),
                                        on_end=lambda: self._from_thread(self._stop.set),
@@ -235,6 +244,8 @@ class Service:
             await asyncio.to_thread(thread.join, THREAD_JOIN_S)
             if thread.is_alive():
                 log.warning("%s thread still busy at stop; leaving it", thread.name)
+        if self.recorder is not None:
+            await asyncio.to_thread(self.recorder.stop, RECORDER_FLUSH_S)
         await self.link.close()
         log.info("service stopped: %d frames, %d vision messages sent", self.stats.frames,
                  self.stats.sent)

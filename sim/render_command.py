@@ -9,7 +9,6 @@ import argparse
 from pathlib import Path
 
 import cv2
-import numpy as np
 
 from calib.camera_yaml import save_camera
 from calib.depth_camera import DepthSpec
@@ -48,12 +47,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "'ideal' has no noise and no holes)")
 
 
-def depth_png(depth: np.ndarray, sensor: DepthSensor) -> np.ndarray:
-    """A depth map (float m, 0 = none) as the sensor's 16-bit image (its unit, or 1 mm)."""
-    unit = sensor.unit_m or 0.001
-    return np.clip(np.rint(np.nan_to_num(depth) / unit), 0, 65535).astype(np.uint16)
-
-
 def depth_spec(sensor: DepthSensor) -> DepthSpec:
     """The camera.yaml `depth` keys of a rendered flight: registered, the sensor's range."""
     return DepthSpec(scale=sensor.unit_m or 0.001, min_m=sensor.min_m, max_m=sensor.max_m)
@@ -71,12 +64,13 @@ def run(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise InputError("--out exists and is not a folder", out)
     (out / "images").mkdir(parents=True, exist_ok=True)
+    spec = depth_spec(sensor) if args.depth else None
     if args.depth:
         (out / "depth").mkdir(exist_ok=True)
     save_camera(seq.camera, out / "camera.yaml",
                 comment=f"sdvl render {args.preset} --seed {args.seed}"
                 + (f" --depth (depth camera model {sensor.name})" if args.depth else ""),
-                depth=depth_spec(sensor) if args.depth else None)
+                depth=spec)
     write_tum(seq.groundtruth, out / "groundtruth.txt")
     write_imu_csv(seq.imu, out / "imu.csv")
     write_sensors_csv(seq.extras["sensors"], out / "sensors.csv")
@@ -87,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
         cv2.imwrite(str(out / name), image)
         lines.append(f"{t:.6f} {name}\n")
         if args.depth:
-            cv2.imwrite(str(out / f"depth/{i:06d}.png"), depth_png(seq.depth(i), sensor))
+            cv2.imwrite(str(out / f"depth/{i:06d}.png"), spec.to_raw(seq.depth(i)))
             depth_lines.append(f"{t:.6f} depth/{i:06d}.png\n")
     (out / "frames.txt").write_text("# timestamp filename\n" + "".join(lines))
     if args.depth:

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.camera import CameraModel
-from daemon.recordings import load_grey
+from daemon.recordings import DepthMaps, load_grey
 from sdvl.errors import InputError
 from sim.trajectory import Trajectory
 
@@ -24,7 +24,7 @@ class ImuSamples:
 
 
 @dataclass
-class Sequence:
+class Sequence(DepthMaps):
     """An image sequence: frames come from `frames()` one at a time, never all in memory.
 
     `timestamps` are seconds; `image_loader(i)` returns frame i as a grey uint8 image, or
@@ -65,18 +65,6 @@ class Sequence:
         if self.image_loader is None:
             raise InputError(f"sequence '{self.name}' can only be read in order")
         return self.image_loader(index)
-
-    @property
-    def has_depth(self) -> bool:
-        """True when the sequence comes with depth maps."""
-        return self.depth_loader is not None
-
-    def depth(self, index: int) -> np.ndarray | None:
-        """Depth map of frame `index` (None without one; see the class docstring)."""
-        if self.depth_loader is None:
-            raise InputError(f"sequence '{self.name}' has no depth (no depth.txt beside its "
-                             "frame list)")
-        return self.depth_loader(index)
 
     def depth_at(self, t: float) -> np.ndarray | None:
         """Depth map of the frame at time `t` (None without one)."""

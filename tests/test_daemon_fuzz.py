@@ -150,3 +150,15 @@ def test_messages_of_the_autopilots_own_dialect_are_counted_not_taken_for_a_stra
     codec.feed(autopilot.ekf_status_report_encode(0, 0.1, 0.1, 0.1, 0.1, 0).pack(autopilot)
                + autopilot.heartbeat_encode(2, 3, 0, 0, 3).pack(autopilot))
     assert [m.get_type() for m in got] == ["HEARTBEAT"] and codec.unknown == 1
+
+
+def test_a_message_with_a_value_beyond_its_fields_is_dropped_and_counted_not_raised():
+    """A covariance past float32 (a filter bug) made pymavlink raise OverflowError inside the
+    send path; the codec drops such a message, counts it and keeps the link."""
+    written = []
+    codec = MavlinkCodec(1, 197, lambda b: written.append(b) or True, lambda m: None)
+    huge = [1e39] + [0.0] * 20
+    msg = codec.mav.odometry_encode(0, 1, 8, 0.0, 0.0, 0.0, [1, 0, 0, 0], 0, 0, 0, 0, 0, 0,
+                                    huge, [0.0] * 21, 0, 0, 0)
+    assert codec.send(msg) is False and codec.unpackable == 1 and not written
+    assert codec.send(codec.mav.heartbeat_encode(18, 8, 0, 0, 4)) and len(written) == 1

@@ -10,10 +10,10 @@ import pytest
 from calib.camera import CameraModel
 from calib.camera_yaml import load_camera, load_depth_spec, save_camera
 from calib.depth_camera import DepthSpec, decimate, register_depth
+from daemon.recordings import associate
 from sdvl.cli import main
 from sdvl.errors import InputError
 from sim.datasets import open_sequence
-from sim.datasets.depth import associate
 from sim.synth.flight import synthetic_sequence
 
 SMALL = CameraModel(40, 30, 35.0, 35.0, 19.5, 14.5)
@@ -197,3 +197,19 @@ def test_depth_sensor_needs_depth(tmp_path, capsys):
     assert main(["render", "hover-down", "--out", str(tmp_path / "x"), "--frames", "1",
                  "--depth-sensor", "ideal"]) == 2
     assert "--depth" in capsys.readouterr().err
+
+
+def test_a_plain_image_folder_reads_its_depth_txt(tmp_path):
+    """Images without a frame list are timed at fps from 0; a depth.txt on that clock
+    gives them depth, as in the shared layout."""
+    (tmp_path / "depth").mkdir()
+    for i in range(3):
+        cv2.imwrite(str(tmp_path / f"{i}.png"), np.full((30, 40), 50, np.uint8))
+        cv2.imwrite(str(tmp_path / f"depth/{i}.png"), np.full((30, 40), 1000 * (i + 1),
+                                                               np.uint16))
+    (tmp_path / "depth.txt").write_text("".join(f"{i / 10:.3f} depth/{i}.png\n"
+                                                for i in range(3)))
+    save_camera(SMALL, tmp_path / "camera.yaml", depth=DepthSpec(0.001))
+    seq = open_sequence(tmp_path, fps=10.0)
+    assert seq.has_depth
+    assert [float(seq.depth(i)[3, 4]) for i in range(3)] == pytest.approx([1.0, 2.0, 3.0])

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from daemon.fusion.config import FusionConfig
-from daemon.fusion.state import ANCHOR, LOG_SCALE, THETA, VEL, NavFilter
+from daemon.fusion.state import ANCHOR, LOG_SCALE, POS, THETA, TIME_OFFSET, VEL, NavFilter
 
 
 def _filter(**settings: float) -> NavFilter:
@@ -25,9 +25,22 @@ def test_moving_the_anchor_along_the_map_adds_no_noise() -> None:
         f.P[:, index] = 0.0
     before = f.P[ANCHOR, ANCHOR].copy()
     for step in range(1, 21):
-        f.reanchor(np.array([0.5 * step, 0.0, 0.0]))
+        f.reanchor(np.array([0.5 * step, 0.0, 0.0]), np.eye(3))
     np.testing.assert_allclose(f.P[ANCHOR, ANCHOR], before, atol=1e-12)
     np.testing.assert_allclose(f.x[ANCHOR], [10.0, 0.0, 0.0])
+
+
+def test_a_map_of_unknown_scale_is_hung_from_the_vehicle_the_imu_carries() -> None:
+    """With the scale unknown (the prior) and an IMU, each move of the anchor puts it where
+    the filter has the camera: its variance stays the vehicle's however far the map goes."""
+    f = _filter()
+    f.accel = np.zeros(3)  # an IMU has been integrated
+    f.P[LOG_SCALE, LOG_SCALE] = 2.0**2
+    for step in range(1, 201):
+        f.x[POS] = [0.5 * step, 0.0, 0.0]
+        f.reanchor(np.array([0.05 * step, 0.0, 0.0]), np.eye(3))
+        np.testing.assert_allclose(f.x[ANCHOR], f.x[POS] + f.lever + f.x[TIME_OFFSET] * f.x[VEL])
+    assert np.all(np.diag(f.P[ANCHOR, ANCHOR]) <= np.diag(f.P[POS, POS]) + 1e-3)
 
 
 def test_a_climb_lets_the_map_wander_sideways_only() -> None:

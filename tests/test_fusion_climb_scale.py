@@ -7,7 +7,7 @@ import numpy as np
 
 from daemon.fusion.climb_scale import ClimbScale
 from daemon.fusion.config import FusionConfig
-from daemon.fusion.state import LOG_SCALE, POS, NavFilter
+from daemon.fusion.state import ANCHOR, LOG_SCALE, POS, NavFilter
 
 SCALE = 2.5  # metres per map unit
 
@@ -38,12 +38,29 @@ def test_a_reading_is_paired_once() -> None:
     assert climb.altitude == [10.0]
 
 
-def test_rescale_puts_the_vehicle_where_the_map_says() -> None:
+def test_rescale_of_a_known_scale_puts_the_vehicle_where_the_map_says() -> None:
+    f = NavFilter(FusionConfig())
+    f.start(0.0, 3.0)
+    f.start_segment(np.zeros(3), np.eye(3), np.eye(3), np.log(2.0), scale_std=0.1)
+    f.rescale(np.array([0.0, 0.0, -2.0]), np.eye(3), np.log(SCALE), 0.03)
+    assert np.allclose(f.x[POS], [0.0, 0.0, -2.0 * SCALE])
+    assert np.isclose(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]), 0.03)
+    assert np.all(np.linalg.eigvalsh(f.P) > -1e-12)
+
+
+def test_rescale_of_an_unknown_scale_hangs_the_map_from_the_vehicle() -> None:
+    """Above nav_scale_std the map never moved the vehicle (the IMU, baro and rangefinder
+    did): the vehicle stays and the map's anchor goes where the new scale puts it."""
     f = NavFilter(FusionConfig())
     f.start(0.0, 3.0)
     f.start_segment(np.zeros(3), np.eye(3), np.eye(3), 0.0)
+    f.accel = np.zeros(3)  # an IMU has been integrated
+    f.x[POS] = [1.0, 2.0, -4.0]  # where dead reckoning took the vehicle
+    f.x[ANCHOR] = [7.0, 0.0, 0.0]  # wherever the unknown scale's fixes left it
     f.rescale(np.array([0.0, 0.0, -2.0]), np.eye(3), np.log(SCALE), 0.03)
-    assert np.allclose(f.x[POS], [0.0, 0.0, -2.0 * SCALE])
+    assert np.allclose(f.x[POS], [1.0, 2.0, -4.0])
+    assert np.allclose(f.x[ANCHOR], f.x[POS] + f.lever)  # the map's p_w is the camera now
+    assert np.allclose(f.p_w0, [0.0, 0.0, -2.0])
     assert np.isclose(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]), 0.03)
     assert np.all(np.linalg.eigvalsh(f.P) > -1e-12)
 

@@ -6,15 +6,17 @@ The EKF linearises around its current scale. Starting from the wide prior (no ra
 7x off), its first fixes land far off and its covariance shrinks before the estimate gets there,
 a biased scale it is sure of. Within a window
 starting at time 0, the vehicle's displacement is v0 t + P(t), with P the double integral of the
-IMU's acceleration in N, and the map's displacement m(t) (tracker units, in N) over the scale is
-the same displacement: m(t) = (v0 t + P(t) - b t^2 / 2) / s + c, with c the map's error at the
-window's first frame and b the accelerometer's bias in N. c and v0 differ per window and are
-eliminated in closed form; what is left is linear in 1/s and b/s, so no linearisation point is
-needed, and motion at constant velocity tells nothing, as it should. The raw accelerometer is
-used, not the filter's bias estimate: a filter whose scale has run off explains the mismatch
-with a bias, and the fit would agree with it. The map is regressed on the IMU, not the other
-way round: the map's noise would pull a fit on it towards zero wherever the motion is nearly
-uniform.
+IMU's acceleration in N less its bias b, and s times the map's displacement m(t) (tracker units,
+in N) is the same displacement: P(t) = s m(t) + b t^2 / 2 - v0 t + c, with c the map's error at
+the window's first frame. c and v0 differ per window and are eliminated in closed form; what is
+left is linear in s and b, so no linearisation point is needed, and motion at constant velocity
+tells nothing, as it should. The raw accelerometer is used, not the filter's bias estimate: a
+filter whose scale has run off explains the mismatch with a bias, and the fit would agree with
+it. The IMU is regressed on the map, not the other way round: in flight the IMU's double
+integral carries decimetres of vibration and attitude error over a window, the map millimetres,
+and the error in a regressor shrinks the slope (regressed on the IMU, a hover's map gave scales
+5x too large, and the first tenth of a second of a leg after it 5x too small, each at a
+claimed 20 %); what is left of the map's own noise is taken off as its expected share.
 """
 
 from __future__ import annotations
@@ -24,9 +26,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 WINDOW_S = 2.0  # each window has its own offset and v0: short ones follow the map's drift
-# the IMU's motion must explain at least this many times what its noise alone would (its
-# expected share of the fit's sums is taken off: a regression on a noisy regressor shrinks the
-# slope, here 1/scale, by signal / (signal + noise))
+# the map's motion must be at least this many times what its own noise alone would give (that
+# expected share of the fit's sums is taken off: noise in the regressor shrinks the slope)
 MIN_SIGNAL_TO_NOISE = 2.0
 
 
@@ -42,16 +43,19 @@ class _Window:
     frames: int = 0
     taus: list[float] = field(default_factory=list)
     weights: list[float] = field(default_factory=list)
-    ps: list[np.ndarray] = field(default_factory=list)  # the IMU's displacement, per frame
+    ms: list[np.ndarray] = field(default_factory=list)  # the map's displacement, per frame
+    map_vars: list[float] = field(default_factory=list)  # its noise's variance, units^2
 
     def copy(self) -> _Window:
         return _Window(self.basis.copy(), self.data.copy(), self.cross.copy(), self.frames,
-                       list(self.taus), list(self.weights), list(self.ps))
+                       list(self.taus), list(self.weights), list(self.ms), list(self.map_vars))
 
-    def add(self, t: float, m: np.ndarray, p: np.ndarray, weight: float) -> None:
+    def add(self, t: float, m: np.ndarray, p: np.ndarray, weight: float,
+            map_var: float) -> None:
         self.taus.append(t)
+        self.map_vars.append(map_var)
         self.weights.append(weight)
-        self.ps.append(np.array(p, float))
+        self.ms.append(np.array(m, float))
         b = np.array([1.0, t])
         y = np.stack([p, np.full(3, t * t), m], axis=1)  # (axis, y)
         self.basis += weight * np.outer(b, b)
@@ -59,31 +63,35 @@ class _Window:
         self.cross += weight * y[:, :, None] * y[:, None, :]
         self.frames += 1
 
+    def _usable(self) -> bool:
+        return self.frames >= 4 and np.linalg.det(self.basis) > 1e-12 * self.basis[0, 0] ** 2
+
     def normal(self) -> np.ndarray:
         """Per axis, sum y'Wy with the offset and v0 eliminated (zeros while the window has
         fewer than four frames)."""
-        if self.frames < 4 or not np.linalg.det(self.basis) > 1e-12 * self.basis[0, 0] ** 2:
+        if not self._usable():
             return np.zeros((3, 3, 3))  # too few frames, or all at one time
         return self.cross - np.einsum("aki,kl,alj->aij", self.data, np.linalg.inv(self.basis),
                                       self.data)
 
-    def noise(self, density: float) -> tuple[float, float]:
-        """What white IMU noise of `density` does to the sums once the offset and v0 are
-        eliminated (M: the weights with the window's basis projected out; C: the covariance
-        of doubly integrated white noise at the frames' times, s^2 (3 t - s) / 6 for s <= t):
-        its expected share of sum w P^2 over the three axes, 3 trace(M C), and the variance it
-        gives sum w P m per unit of 1/scale, sum_axes P' M C M P (the noise is correlated
-        from frame to frame: the residuals do not show it)."""
-        if self.frames < 4 or not np.linalg.det(self.basis) > 1e-12 * self.basis[0, 0] ** 2:
-            return 0.0, 0.0
+    def noise(self, density: float) -> np.ndarray:
+        """With the offset and v0 eliminated (M: the weights with the window's basis projected
+        out): the share of sum w m^2 over the three axes that the map's white noise gives,
+        3 sum_i M_ii var_i, and the variance that white IMU noise of `density`
+        gives sum w m P, sum_axes m' M C M m (C: the covariance of doubly integrated white noise
+        at the frames' times, s^2 (3 t - s) / 6 for s <= t; correlated from frame to frame, so
+        the residuals do not show it)."""
+        if not self._usable():
+            return np.zeros(2)
         tau, w = np.array(self.taus), np.array(self.weights)
         s, t = np.minimum.outer(tau, tau), np.maximum.outer(tau, tau)
         C = density**2 * s * s * (3.0 * t - s) / 6.0
         B = np.stack([np.ones_like(tau), tau], axis=1)
         WB = w[:, None] * B
         M = np.diag(w) - WB @ np.linalg.solve(B.T @ WB, WB.T)
-        MP = M @ np.array(self.ps)  # (frames, axis)
-        return 3.0 * float(np.sum(M * C)), float(np.sum(MP * (C @ MP)))
+        Mm = M @ np.array(self.ms)  # (frames, axis)
+        return np.array([3.0 * float(np.diag(M) @ np.array(self.map_vars)),
+                         float(np.sum(Mm * (C @ Mm)))])
 
 
 @dataclass
@@ -122,12 +130,17 @@ class AccelScale:
         self.start_t = None
 
     def add_frame(self, t: float, p_w: np.ndarray, R_n_w: np.ndarray,
-                  accel_noise: float | None = None) -> None:
+                  accel_noise: float | None = None, time_offset: float = 0.0,
+                  map_var: float = 0.0) -> None:
         """The map's camera position (tracker units) at time t, the map's current rotation
-        into N, and the IMU stream's noise density measured now (imu_noise.py; at least
+        into N, the IMU stream's noise density measured now (imu_noise.py; at least
         `self.accel_noise`): in flight, motor vibration makes it several times the bench
         figure, and a fit weighted by the bench figure took a hover's few centimetres for a
-        scale 2-3x off at a claimed 5-10 %."""
+        scale 2-3x off at a claimed 5-10 %), and how far the IMU's stamps are behind the
+        camera's (the filter's TIME_OFFSET): the camera at t saw the vehicle where the IMU
+        says it is `time_offset` later. Unpaired, the first 0.1 s of a 2 m leg gave a scale
+        5x too small (the map moved before the IMU's stamps said so). `map_var`: the variance
+        of the map's position noise (units^2, per axis; the tracker's covariance)."""
         if self.start_t is not None and t - self.start_t > WINDOW_S:
             self.closed += self.window.normal()
             self.closed_noise += self.window.noise(self.density)
@@ -140,41 +153,34 @@ class AccelScale:
         self.density = (self.accel_noise if accel_noise is None
                         else max(accel_noise, self.accel_noise))
         sigma2 = self.density**2 * tau**3 / 3 + self.position_std_m**2
-        self.window.add(tau, R_n_w @ (np.asarray(p_w, float) - self.start_p), self.p,
-                        1.0 / sigma2)
+        self.window.add(tau, R_n_w @ (np.asarray(p_w, float) - self.start_p),
+                        self.p + time_offset * self.v, 1.0 / sigma2, map_var)
         self.frames += 1
 
     def fit(self) -> tuple[float, float] | None:
-        """(ln(scale), its std), or None while the motion so far does not give a positive
-        scale apart from a bias, or the IMU's displacement is mostly its own noise (a hover).
-        The noise's expected share of the IMU's sum of squares is taken off (corrected least
-        squares for an error in the regressor). The std is the modelled noise's, or the
-        residuals' where they are larger."""
+        """(ln(scale), its std), or None while the map's motion so far does not give a positive
+        scale apart from a bias, or is mostly the map's own noise (a hover). The IMU's
+        displacement is regressed on the map's: the IMU's errors (vibration, a drifting
+        attitude tilting gravity in) are far larger than the map's but only widen the fit; the
+        map's noise's expected share of its sum of squares is taken off (corrected least
+        squares). The std is the modelled noise's, or the residuals' where they are larger."""
         sums = self.closed + self.window.normal()  # (axis, y, y), y = (P, t^2, m)
-        N = np.zeros((4, 4))  # unknowns: units per metre, and it times -b/2 per axis
-        r = np.zeros(4)
-        N[0, 0], r[0] = sums[:, 0, 0].sum(), sums[:, 0, 2].sum()
-        noise, spread = self.closed_noise + self.window.noise(self.density)
-        if not N[0, 0] > (1.0 + MIN_SIGNAL_TO_NOISE) * noise:
+        shape = sums[:, 1, 1]  # the bias's t^2, per axis
+        if not (np.all(shape > 0) and sums[:, 2, 2].sum() > 0):
             return None
-        N[0, 0] -= noise
-        N[0, 1:] = N[1:, 0] = sums[:, 0, 1]
-        N[1:, 1:] = np.diag(sums[:, 1, 1])
-        r[1:] = sums[:, 1, 2]
-        if not np.all(np.diag(N) > 0):
+        # the bias eliminated: what is left of the map's motion, and of its product with the IMU
+        signal = float(sums[:, 2, 2].sum() - np.sum(sums[:, 2, 1] ** 2 / shape))
+        product = float(sums[:, 2, 0].sum() - np.sum(sums[:, 2, 1] * sums[:, 1, 0] / shape))
+        map_share, imu_spread = self.closed_noise + self.window.noise(self.density)
+        informative = signal - map_share  # corrected least squares
+        if not (informative > MIN_SIGNAL_TO_NOISE * map_share and informative > 0
+                and product > 0):
             return None
-        try:
-            cov = np.linalg.inv(N)
-        except np.linalg.LinAlgError:
-            return None
-        theta = cov @ r
-        units_per_m = float(theta[0])
-        if not (units_per_m > 0 and np.isfinite(units_per_m) and cov[0, 0] > 0):
-            return None
+        m_per_unit = product / informative
         dof = 3 * (self.frames - 2 * (self.windows + 1)) - 4  # 3 axes; offset, v0 per window
-        # the weights are per metre^2: in map units the residuals' variance is units_per_m^2
-        # times the modelled one
-        residual = max(float(sums[:, 2, 2].sum() - theta @ r), 0.0)
-        ratio = residual / (dof * units_per_m**2) if dof > 0 else 1.0
-        return float(-np.log(units_per_m)), float(np.sqrt(max(ratio, 1.0) * cov[0, 0]
-                                                          + spread / N[0, 0] ** 2))
+        bias = (sums[:, 1, 0] - m_per_unit * sums[:, 2, 1]) / shape  # b/2 per axis
+        residual = float(sums[:, 0, 0].sum() - m_per_unit * sums[:, 2, 0].sum()
+                         - bias @ sums[:, 1, 0])  # the weights are per m^2
+        ratio = max(residual, 0.0) / dof if dof > 0 else 1.0
+        var = (max(ratio, 1.0) + imu_spread / informative) / informative
+        return float(np.log(m_per_unit)), float(np.sqrt(var) / m_per_unit)

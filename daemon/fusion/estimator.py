@@ -394,6 +394,7 @@ class FusionEstimator:
         height = (self._autopilot_z[1] if self._autopilot_z is not None
                   and abs(t - self._autopilot_z[0]) <= HEIGHT_FRESH_S else 0.0)
         self.filter.start(t, cfg.rest_velocity_std if still else cfg.start_velocity_std, height)
+        self.maps.ground_z = height if still else None
         log.info("fusion: started %s, height %.2f m (NED z %s)",
                  "standing still" if still else "moving", -height,
                  "from the autopilot" if self._autopilot_z is not None else "0")

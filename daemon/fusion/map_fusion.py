@@ -17,7 +17,7 @@ from daemon.fusion.alignment import AlignmentGate
 from daemon.fusion.attitude import AttitudeTrack
 from daemon.fusion.config import FusionConfig
 from daemon.fusion.output import attitude_noise, inflation
-from daemon.fusion.state import ANCHOR, LOG_SCALE, POS, NavFilter, ScaleSource
+from daemon.fusion.state import ANCHOR, LOG_SCALE, POS, TIME_OFFSET, NavFilter, ScaleSource
 from vo.pose_optimizer import MAD_TO_SIGMA
 from vo.result import Quality
 
@@ -84,6 +84,7 @@ class MapFusion:
         self.cfg, self.filter, self.attitude, self.gate = cfg, nav, attitude, gate
         self.readings, self.imu_fresh, self.camera_down = readings, imu_fresh, camera_down
         self.imu_density = imu_density  # the IMU stream's measured noise, per body axis
+        self.ground_z: float | None = None  # NED z where the vehicle stood at the start
 
     def fuse(self, t: float, frame: FrameInput) -> None:
         """Fuse a tracker frame at the filter's time t: a new map starts (its anchor cloned from
@@ -96,6 +97,8 @@ class MapFusion:
                 return
             f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b,
                             *self._scale_prior(t, frame, att.R_n_b), metric=frame.metric)
+            if f.scale_source is ScaleSource.GIVEN and self.readings.fresh_range(t) is None:
+                f.scale_source = ScaleSource.FIT  # from the barometer: a surer fit replaces it
             f.segment = frame.segment
             self.gate.restart()
             return
@@ -114,7 +117,7 @@ class MapFusion:
         if m.update_vo(f, frame.p_w, frame.cov, R_n_b, factor, imu, attitude,
                        coarse):
             if np.linalg.norm(f.x[POS] - f.x[ANCHOR]) > self.cfg.reanchor_distance_m:
-                f.reanchor(frame.p_w)
+                f.reanchor(frame.p_w, R_n_b)
             if not metric:
                 self._scene_height(t, frame, R_n_b)
         elif f.rejections["vo"] >= self.cfg.reset_after_rejections and att is not None:
@@ -160,7 +163,9 @@ class MapFusion:
             f.motion.interrupt()  # nothing left to fit, or no IMU to fit
             return
         f.motion.add_frame(t, frame.p_w, f.R_nom,
-                           float(np.sqrt(np.mean(np.square(self.imu_density())))))
+                           float(np.sqrt(np.mean(np.square(self.imu_density())))),
+                           float(f.x[TIME_OFFSET]),
+                           float(np.trace(frame.cov[:3, :3])) / 3.0 + m.vo_position_floor(f))
         fit = f.motion.fit()
         if att is None or fit is None or not fit[1] <= cfg.coarse_scale_std:
             return
@@ -195,8 +200,12 @@ class MapFusion:
         """ln(scale) and its std for a map the filter starts on: with a downward camera and a
         fresh rangefinder reading, the reading over the map's height in its own units: the
         median depth of the points the frame matched, or map_depth_units on the map's first
-        frame (the tracker scales a new map so); else the last map's scale or the configured
-        guess with the wide prior (None)."""
+        frame (the tracker scales a new map so); without the rangefinder, the height above
+        where the vehicle stood at the start (flat ground assumed, the std says how sure);
+        else the last map's scale or the configured guess with the wide prior (None). A map
+        started after the climb without a rangefinder had only the IMU's fit left, which a
+        hover does not give: the IMU carried the vehicle alone and the autopilot's EKF
+        failsafed on 9 of 10 seeds."""
         cfg, f = self.cfg, self.filter
         units = self._map_height_units(frame, R_n_b @ frame.R_w_b.T)
         if units is None and frame.fresh:
@@ -204,6 +213,13 @@ class MapFusion:
         distance = self.readings.fresh_range(t)
         if units is not None and self.camera_down and distance is not None:
             return float(np.log(distance / units)), cfg.range_scale_prior_std
+        height = None if self.ground_z is None else self.ground_z - float(f.x[2])
+        if units is not None and self.camera_down and height is not None and height > 0:
+            # no rangefinder: the height above where it stood (barometer), as wrong as the
+            # filter's height, the barometer's noise and the rotors' wash on it allow
+            std = (float(np.sqrt(f.P[2, 2])) + cfg.baro_std_m) / height
+            if std < cfg.nav_scale_std:
+                return float(np.log(height / units)), std
         return (float(f.x[LOG_SCALE]) if f.segment >= 0 else float(np.log(cfg.initial_scale)),
                 None)
 

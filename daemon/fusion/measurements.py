@@ -107,6 +107,12 @@ def _without_motion(rows: int, climbing: bool) -> np.ndarray:
     return mask
 
 
+def vo_position_floor(f: NavFilter) -> float:
+    """The least variance of a tracker position (map units^2): vo_position_std_m at the
+    filter's scale."""
+    return (f.cfg.vo_position_std_m * float(np.exp(-f.x[LOG_SCALE]))) ** 2
+
+
 def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarray,
               inflation: float, scale_from_motion: bool = True,
               attitude: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
@@ -132,8 +138,7 @@ def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarra
     if attitude is not None:
         z_a, h_a, H_a = _alignment_rows(f, attitude[0], attitude[1])
         z, h, H = np.concatenate([z, z_a]), np.concatenate([h, h_a]), np.vstack([H, H_a])
-    floor = (f.cfg.vo_position_std_m * float(np.exp(-f.x[LOG_SCALE]))) ** 2
-    R = inflation * (cov_n + np.diag([floor] * 3 + [0.0] * 3))
+    R = inflation * (cov_n + np.diag([vo_position_floor(f)] * 3 + [0.0] * 3))
     stretch = np.diag([np.sqrt(horizontal_inflation)] * 2 + [1.0] * 4)
     R = stretch @ R @ stretch
     gate = f.cfg.gate_chi2_3dof

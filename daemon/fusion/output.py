@@ -11,6 +11,8 @@ from daemon.fusion.state import VEL, NavFilter
 from vo.result import Quality
 
 QUALITY_INFLATION_KEYS = {Quality.INSUFFICIENT: "inflate_insufficient", Quality.BAD: "inflate_bad"}
+# ODOMETRY's fields are float32: beyond this (or not finite) a value is no estimate
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 JUMP_FLOOR_M = 0.02  # moves below this are never a discontinuity (a filter at rest is sure to mm)
 
 
@@ -47,13 +49,14 @@ def horizontal_std(f: NavFilter) -> float:
 def build_estimate(f: NavFilter, cfg: FusionConfig, *, R_l_b: np.ndarray, rot_cov: np.ndarray,
                    rates: np.ndarray, t_capture: float, t_source: float, state: str,
                    reset_counter: int) -> VisionEstimate | None:
-    """The estimate to send, or None if anything in it is not finite. `R_l_b` is the body's
-    attitude in the local frame and `rot_cov` its covariance there. The covariance is the
-    filter's, with nothing added: the autopilots apply their own floors (VISO_POS_M_NSE,
-    EKF2_EVP_NOISE). It describes errors in the local frame, whose north is the autopilot's
-    compass north, the frame the autopilot fuses our poses in, so the compass bias is not in
-    it. While the tracker's updates are being rejected, the position's covariance also covers
-    the last disagreement between the map and the filter: either may be the one gone wrong."""
+    """The estimate to send, or None if anything in it is not finite or beyond float32.
+    `R_l_b` is the body's attitude in the local frame and `rot_cov` its covariance there.
+    The covariance is the filter's, with nothing added: the autopilots apply their own
+    floors (VISO_POS_M_NSE, EKF2_EVP_NOISE). It describes errors in the local frame, whose
+    north is the autopilot's compass north, the frame the autopilot fuses our poses in, so
+    the compass bias is not in it. While the tracker's updates are being rejected, the
+    position's covariance also covers the last disagreement between the map and the filter:
+    either may be the one gone wrong."""
     factor = inflation(cfg, state)
     position, J = f.at_camera_time()
     pose_cov = np.zeros((6, 6))
@@ -73,7 +76,7 @@ def build_estimate(f: NavFilter, cfg: FusionConfig, *, R_l_b: np.ndarray, rot_co
         quality=quality_percent(pose_cov[:3, :3], cfg.quality_good_std_m),
         reset_counter=reset_counter, state=state)
     arrays = (estimate.position, R_l_b, velocity, rates, pose_cov, vel_cov)
-    return estimate if all(np.all(np.isfinite(a)) for a in arrays) else None
+    return estimate if all(np.all(np.abs(a) <= FLOAT32_MAX) for a in arrays) else None
 
 
 class Continuity:

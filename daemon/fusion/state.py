@@ -171,12 +171,7 @@ class NavFilter:
         self.climb = ClimbScale()
         self.motion = self._accel_scale()
         x, P = self.x, self.P
-        camera, J = self.camera(R_n_b)
-        x[ANCHOR] = camera
-        JP = J @ P
-        P[ANCHOR, :] = JP
-        P[:, ANCHOR] = JP.T
-        P[ANCHOR, ANCHOR] = JP @ J.T
+        self._hang_map(p_w, R_n_b)
         x[LOG_SCALE] = log_scale
         x[THETA] = 0.0
         if scale_std is None:
@@ -194,7 +189,6 @@ class NavFilter:
             else:
                 P[index, index] = std**2
         self.R_nom = R_n_b @ R_w_b.T
-        self.p_w0 = np.asarray(p_w, float).copy()
 
     def at_camera_time(self) -> tuple[np.ndarray, np.ndarray]:
         """The vehicle's position (N) at the camera's clock's time of the filter, and its
@@ -244,6 +238,9 @@ class NavFilter:
         reckoning at the old scale is dropped, and so is the barometer's offset,
         which was fitted to it (the next reading re-references it)."""
         x, P = self.x, self.P
+        if self._imu_carries():
+            self._rescale_map(p_w, R_n_b, log_scale, scale_std)
+            return
         ratio = float(np.exp(log_scale - x[LOG_SCALE]))
         m = self.R_nom @ (np.asarray(p_w, float) - self.p_w0)
         s = float(np.exp(log_scale))
@@ -270,6 +267,40 @@ class NavFilter:
         self.has_baro = False
         self.scale_source = ScaleSource.FIT
 
+    def _imu_carries(self) -> bool:
+        """Whether the IMU (with the barometer and rangefinder) carries the vehicle, not the
+        map: the scale too unsure to move it (above nav_scale_std) and an IMU to integrate."""
+        return (self.accel is not None
+                and np.sqrt(self.P[LOG_SCALE, LOG_SCALE]) > self.cfg.nav_scale_std)
+
+    def _rescale_map(self, p_w: np.ndarray, R_n_b: np.ndarray, log_scale: float,
+                     scale_std: float) -> None:
+        """rescale() of a filter whose IMU carries the vehicle (_imu_carries): it stays, and
+        the map is hung from where it is, at the new scale. The anchor had followed the old
+        scale's wandering (re-anchored at it; forget_scale drops the correlation): put where
+        the map said at the new scale, a vehicle 40 m into a level flight jumped 6.8 m at a
+        claimed 1 m."""
+        self._hang_map(p_w, R_n_b)
+        P = self.P
+        P[LOG_SCALE, :] = 0.0
+        P[:, LOG_SCALE] = 0.0
+        P[LOG_SCALE, LOG_SCALE] = scale_std**2
+        self.x[LOG_SCALE] = log_scale
+        self.has_baro = False
+        self.scale_source = ScaleSource.FIT
+
+    def _hang_map(self, p_w: np.ndarray, R_n_b: np.ndarray) -> None:
+        """Make the map's point p_w the camera's position where the filter has the vehicle:
+        the anchor takes the vehicle's uncertainty, none of the scale's."""
+        camera, J = self.camera(R_n_b)
+        P = self.P
+        JP = J @ P
+        P[ANCHOR, :] = JP
+        P[:, ANCHOR] = JP.T
+        P[ANCHOR, ANCHOR] = JP @ J.T
+        self.x[ANCHOR] = camera
+        self.p_w0 = np.asarray(p_w, float).copy()
+
     def forget_scale(self) -> None:
         """Back to the wide prior's uncertainty: from there the EKF's linearised fixes settle
         far off and become sure of it before the estimate gets there; the fits of
@@ -279,13 +310,19 @@ class NavFilter:
         P[:, LOG_SCALE] = 0.0
         P[LOG_SCALE, LOG_SCALE] = self.cfg.scale_prior_std**2
 
-    def reanchor(self, p_w: np.ndarray) -> None:
+    def reanchor(self, p_w: np.ndarray, R_n_b: np.ndarray) -> None:
         """Move the anchor to where the map puts the camera now (tracker position p_w), so only
         the map's drift from here on matters. The map's own chain is followed, not the filtered
         position, so no filter lag is frozen in. The anchor is the point of N the map calls
         p_w0, not where the camera truly was then: the tracker's noise at the old anchor and
         the new one cancel along the chain, so moving adds no noise (adding the frame's noise
-        at every move would make the anchor a random walk of it)."""
+        at every move would make the anchor a random walk of it). While the IMU carries the
+        vehicle, the map is hung from it instead: followed at a scale that is not known, the
+        chain took the prior's variance at every move and the anchor's std grew to 1.6e6 m
+        in 66 s (past float32 later: an ODOMETRY pymavlink could not pack)."""
+        if self._imu_carries():
+            self._hang_map(p_w, R_n_b)
+            return
         x, P = self.x, self.P
         v = self.scale * (self.R_nom @ (np.asarray(p_w, float) - self.p_w0))
         J = np.zeros((3, DIM))

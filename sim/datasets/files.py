@@ -27,12 +27,13 @@ def _find_camera(candidates: list[Path], what: Path) -> CameraModel:
 
 def read_image_folder(path: Path, camera: CameraModel | None = None,
                       fps: float | None = None) -> Sequence:
-    """The images of a folder in natural order, at `fps` (default 30) from t = 0."""
-    recording = open_recording(path, fps)
-    camera = camera or recording.camera or _find_camera(
+    """The images of a folder in natural order, at `fps` (default 30) from t = 0, with the
+    depth maps of a depth.txt beside them."""
+    recording = open_recording(path, fps, camera)
+    camera = recording.camera or _find_camera(
         [path / "camera.yaml", path.parent / "camera.yaml"], path)
     return image_list_sequence(recording.name, camera, recording.timestamps, recording.files,
-                               extras={"root": path})
+                               extras={"root": path}, depth_loader=recording.depth_loader)
 
 
 def read_video(path: Path, camera: CameraModel | None = None,

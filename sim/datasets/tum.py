@@ -8,10 +8,9 @@ from pathlib import Path
 
 from calib.camera import CameraModel
 from calib.camera_yaml import load_camera
-from daemon.recordings import read_frame_list
+from daemon.recordings import depth_list, folder_depth_spec, read_frame_list
 from sdvl.errors import InputError
 from sdvl.textfile import read_numeric_table
-from sim.datasets.depth import depth_list, folder_depth_spec
 from sim.sequence import ImuSamples, Sequence, image_list_sequence
 from sim.trajectory import read_tum
 
