@@ -176,7 +176,6 @@ class Recording(DepthMaps):
             yield float(t), load_grey(path)
 
 
-
 def open_recording(path: str | Path, fps: float | None = None,
                    camera: CameraModel | None = None) -> Recording:
     """The folder's frame list if it has one, else its images in natural order at `fps`

@@ -12,6 +12,7 @@ import asyncio
 import logging
 import os
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
@@ -139,9 +140,11 @@ def frame_recorder(cfg: CameraConfig, camera: CameraModel) -> FrameRecorder | No
                                                                              height), cfg.depth)
 
 
-def tracker_factory(config: Config, camera: CameraModel) -> Callable[[Frame], object]:
+def tracker_factory(config: Config, camera: CameraModel,
+                    warm_first: bool = False) -> Callable[[Frame], object]:
     """Builds the tracker on the first frame (its results carry the matched map points for
-    fusion); tracker options are validated now."""
+    fusion); tracker options are validated now. `warm_first`: before the first tracker, warm
+    a throwaway one up at the frame's size (warm_up), in the tracking thread."""
     from sdvl.errors import InputError
 
     try:
@@ -162,7 +165,40 @@ def tracker_factory(config: Config, camera: CameraModel) -> Callable[[Frame], ob
         tracker.depth_mode = config.camera.depth and tracker_config.depth
         return SceneTracker(tracker)
 
-    return make
+    if not warm_first:
+        return make
+    warmed = False  # only the tracking thread builds trackers
+
+    def warm_then_make(frame: Frame) -> object:
+        nonlocal warmed
+        if not warmed:
+            height, width = frame.image.shape[:2]
+            log.info("warming the tracker up (the first start after an install compiles its "
+                     "kernels: a minute or more on a small computer)")
+            log.info("tracker warmed up in %.1f s", warm_up(make, width, height))
+            warmed = True
+        return make(frame)
+
+    return warm_then_make
+
+
+def warm_up(make_tracker: Callable[[Frame], object], width: int, height: int) -> float:
+    """Run a throwaway tracker over the tracker's warm-up frames (vo.warm_up: a synthetic pan
+    of width x height, nothing rendered or read) so that every kernel is compiled or loaded
+    before the first real frame (not mid-flight, where a cold cache stalled tracking 1-2 s and
+    lost it); returns the seconds it took."""
+    import numpy as np
+
+    from daemon.frames import Frame
+    from vo.warm_up import warm_up as warm_tracker
+
+    start = time.perf_counter()
+    tracker = make_tracker(Frame(0, 0.0, time.monotonic(), np.zeros((height, width), np.uint8)))
+    try:
+        warm_tracker(tracker.process, width, height)
+    finally:
+        tracker.close()
+    return time.perf_counter() - start
 
 
 async def serve(service: Service, signals: EarlySignals | None = None,
@@ -209,7 +245,8 @@ def _start(args: argparse.Namespace, signals: EarlySignals, notifier: Notifier) 
     source = open_source(config.camera)
     camera = camera_model(config.camera, source)
     numba_cache.prepare()
-    service = Service(config, source, tracker_factory(config, camera), notifier=notifier,
+    service = Service(config, source, tracker_factory(config, camera, warm_first=True),
+                      notifier=notifier,
                       size_ok=lambda width, height: fit_camera(camera, width, height),
                       recorder=frame_recorder(config.camera, camera))
     prefer_handoffs()

@@ -173,6 +173,28 @@ def test_a_new_maps_scale_prior_comes_from_the_rangefinder(truth: fh.Truth, pres
         assert std == pytest.approx(cfg.scale_prior_std)
 
 
+def test_a_map_started_before_the_first_range_reading_takes_the_scale_from_it(
+        truth: fh.Truth) -> None:
+    """The service tracks as soon as frames come; the autopilot's DISTANCE_SENSOR may start
+    later (or read below its minimum range on the ground): the first reading then gives the
+    map the scale start_segment would have given. The map kept the wide prior until the
+    IMU's fit in the climb before (sdvl replay, real time)."""
+    tracker = fh.TrackerOptions(start_s=10.0, scene_points=60)
+    mounting = MountingConfig(preset="down")
+    flight = fh.simulate(fh.SensorOptions(imu=None, baro=False), tracker, mounting, seed=2,
+                         truth=truth)
+    flight.frames = [frame for frame in flight.frames if frame[1].t <= tracker.start_s + 1.5]
+    first = next(ready for ready, result, _ in flight.frames if result.has_pose) + 1.0
+    flight.messages = [(at, msg) for at, msg in flight.messages
+                       if msg.get_type() != "DISTANCE_SENSOR" or at > first]
+    cfg = fh.fusion_config()
+    estimator = FusionEstimator(cfg, mounting)
+    fh.run(flight, estimator)
+    f = estimator.filter
+    assert abs(np.log(f.scale * flight.map_scales[0])) < cfg.range_scale_prior_std
+    assert float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE])) < 1.01 * cfg.range_scale_prior_std
+
+
 def test_level_flight_without_imu_takes_the_scale_from_the_maps_height() -> None:
     """Tracking starts in level flight at 8 m: without an IMU neither the motion nor the baro
     tell the scale; the map's height above the ground (its matched points) against the

@@ -113,6 +113,21 @@ def test_recorded_body_imu_replaces_the_derived_one():
     assert body_imu(SimpleNamespace(imu=imu, extras={})) is None
 
 
+def test_the_preflight_imu_reads_gravity_plus_the_sensors_bias_at_the_flights_start():
+    """Standing before the flight the IMU keeps the bias it flies with (a synthetic flight's
+    true one, given at the IMU's sample times); without it, gravity alone."""
+    clock = multiprocessing.Array("d", [math.nan, math.nan])  # no frame yet: the pre-flight
+    imu = ImuSamples(np.array([0.0, 10.0]), np.zeros((2, 3)), np.zeros((2, 3)))
+    ba = np.array([[0.04, -0.02, 0.01], [0.14, -0.02, 0.01]])
+    bg = np.array([[0.002, 0.0, -0.001]] * 2)
+    flight = line_flight()  # starts at t = 0, level
+    state = ReplayVehicle(flight, clock, imu, None, (ba, bg)).state(0.0)
+    np.testing.assert_allclose(state["specific_force"], [0.04, -0.02, 0.01 - 9.80665], atol=1e-3)
+    np.testing.assert_allclose(state["rates"], [0.002, 0.0, -0.001], atol=1e-9)
+    plain = ReplayVehicle(flight, clock, imu).state(0.0)
+    np.testing.assert_allclose(plain["specific_force"], [0.0, 0.0, -9.80665], atol=1e-3)
+
+
 def test_recorded_attitude_baro_and_rangefinder_replace_the_derived_ones():
     clock = multiprocessing.Array("d", [time.monotonic() - 2.0, 2.0])  # at t = 2 s
     yawed = Rotation.from_euler("z", 0.05).as_quat()  # a compass bias

@@ -34,3 +34,29 @@ def test_frames_are_the_cameras_size_and_repeat():
     assert all(a.shape == (48, 64) and a.dtype == "uint8" and a.flags.c_contiguous
                for a in first)
     assert all((a == b).all() for a, b in zip(first, again, strict=True))
+
+
+def test_the_service_warms_a_throwaway_tracker_up_once_before_its_first(monkeypatch):
+    """`sdvl run` builds its trackers with warm_first: the first build warms a throwaway one
+    at the frame's size (kernels compiled before the first real frame, not in flight); a
+    rebuild after a failure does not warm again."""
+    import time
+
+    import numpy as np
+
+    from daemon import run_command
+    from daemon.config import Config
+    from daemon.frames import Frame
+
+    warmed = []
+    monkeypatch.setattr(run_command, "warm_up",
+                        lambda make, width, height: warmed.append((width, height)) or 0.1)
+    camera = CameraModel(320, 240, 240.0, 240.0, 159.5, 119.5)
+    make = run_command.tracker_factory(Config(), camera, warm_first=True)
+    frame = Frame(0, 0.0, time.monotonic(), np.zeros((240, 320), np.uint8))
+    first, second = make(frame), make(frame)
+    assert warmed == [(320, 240)] and first is not second
+    first.close()
+    second.close()
+    run_command.tracker_factory(Config(), camera)(frame).close()
+    assert len(warmed) == 1  # without warm_first (replays warm up before their clock starts)

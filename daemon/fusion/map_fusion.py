@@ -95,15 +95,15 @@ class MapFusion:
         if f.segment != frame.segment:
             if att is None:
                 return
-            f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b,
-                            *self._scale_prior(t, frame, att.R_n_b), metric=frame.metric)
-            if f.scale_source is ScaleSource.GIVEN and self.readings.fresh_range(t) is None:
-                f.scale_source = ScaleSource.FIT  # from the barometer: a surer fit replaces it
+            log_scale, std, source = self._scale_prior(t, frame, att.R_n_b)
+            f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, log_scale, std,
+                            metric=frame.metric, source=source)
             f.segment = frame.segment
             self.gate.restart()
             return
         metric = f.scale_source is ScaleSource.METRIC
         if not metric:  # a metric map has no scale to fit
+            self._late_range_prior(t, frame, att)
             self._climb_scale(t, frame, att)
             self._accel_scale(t, frame, att)
         factor = inflation(self.cfg, frame.quality)
@@ -130,6 +130,32 @@ class MapFusion:
             f.rejections["vo"] = 0
         if f.scale_source is ScaleSource.PRIOR:
             f.forget_scale()
+
+    def _late_range_prior(self, t: float, frame: FrameInput, att: object) -> None:
+        """A map started before the rangefinder's first reading still has the wide prior:
+        give it the scale start_segment would have given (the reading over the camera's height
+        above the points it matched), once a reading comes. The service starts tracking as soon
+        as frames come, before the autopilot streams DISTANCE_SENSOR (or while it reads below
+        its minimum range on the ground); the real-time replay's map kept the wide prior
+        until the IMU's fit in the climb."""
+        f = self.filter
+        if f.scale_source is not ScaleSource.PRIOR or att is None:
+            return
+        log_scale = self._range_scale(t, self._map_height_units(frame, att.R_n_b @ frame.R_w_b.T))
+        if log_scale is None:
+            return
+        log.info("fusion: scale %.3g m/unit from the rangefinder's first reading",
+                 np.exp(log_scale))
+        f.rescale(frame.p_w, att.R_n_b, log_scale, self.cfg.range_scale_prior_std,
+                  ScaleSource.GIVEN)
+
+    def _range_scale(self, t: float, units: float | None) -> float | None:
+        """ln(scale) from a fresh rangefinder reading over the camera's height above the ground
+        in map units, with a downward camera (None: no such reading or height)."""
+        distance = self.readings.fresh_range(t)
+        if units is None or distance is None or not self.camera_down:
+            return None
+        return float(np.log(distance / units))
 
     def _climb_scale(self, t: float, frame: FrameInput, att: object) -> None:
         """Pair the tracker's height with the barometer's; while the filter does not know the
@@ -196,13 +222,14 @@ class MapFusion:
             f.scene_ne = f.x[:2].copy()
 
     def _scale_prior(self, t: float, frame: FrameInput,
-                     R_n_b: np.ndarray) -> tuple[float, float | None]:
-        """ln(scale) and its std for a map the filter starts on: with a downward camera and a
-        fresh rangefinder reading, the reading over the map's height in its own units: the
-        median depth of the points the frame matched, or map_depth_units on the map's first
-        frame (the tracker scales a new map so); without the rangefinder, the height above
-        where the vehicle stood at the start (flat ground assumed, the std says how sure);
-        else the last map's scale or the configured guess with the wide prior (None). A map
+                     R_n_b: np.ndarray) -> tuple[float, float | None, ScaleSource | None]:
+        """ln(scale), its std and where it came from (None: the std says) for a map the filter
+        starts on: with a downward camera and a fresh rangefinder reading, the reading over
+        the map's height in its own units: the median depth of the points the frame matched,
+        or map_depth_units on the map's first frame (the tracker scales a new map so); without
+        the rangefinder, the height above where the vehicle stood at the start (flat ground
+        assumed, the std says how sure); else the last map's scale or the configured guess
+        with the wide prior (None). A map
         started after the climb without a rangefinder had only the IMU's fit left, which a
         hover does not give: the IMU carried the vehicle alone and the autopilot's EKF
         failsafed on 9 of 10 seeds."""
@@ -210,18 +237,18 @@ class MapFusion:
         units = self._map_height_units(frame, R_n_b @ frame.R_w_b.T)
         if units is None and frame.fresh:
             units = cfg.map_depth_units
-        distance = self.readings.fresh_range(t)
-        if units is not None and self.camera_down and distance is not None:
-            return float(np.log(distance / units)), cfg.range_scale_prior_std
+        log_scale = self._range_scale(t, units)
+        if log_scale is not None:
+            return log_scale, cfg.range_scale_prior_std, ScaleSource.GIVEN
         height = None if self.ground_z is None else self.ground_z - float(f.x[2])
         if units is not None and self.camera_down and height is not None and height > 0:
             # no rangefinder: the height above where it stood (barometer), as wrong as the
             # filter's height, the barometer's noise and the rotors' wash on it allow
             std = (float(np.sqrt(f.P[2, 2])) + cfg.baro_std_m) / height
-            if std < cfg.nav_scale_std:
-                return float(np.log(height / units)), std
+            if std < cfg.nav_scale_std:  # FIT: a surer fit replaces it
+                return float(np.log(height / units)), std, ScaleSource.FIT
         return (float(f.x[LOG_SCALE]) if f.segment >= 0 else float(np.log(cfg.initial_scale)),
-                None)
+                None, None)
 
     @staticmethod
     def _map_height_units(frame: FrameInput, R_n_w: np.ndarray) -> float | None:

@@ -161,10 +161,11 @@ class NavFilter:
 
     def start_segment(self, p_w: np.ndarray, R_w_b: np.ndarray, R_n_b: np.ndarray,
                       log_scale: float, scale_std: float | None = None,
-                      metric: bool = False) -> None:
+                      metric: bool = False, source: ScaleSource | None = None) -> None:
         """A new map: clone the camera position as the anchor, fresh alignment, and the scale
-        with `scale_std` (default: the prior's); a `metric` map's scale is 1, exactly and for
-        good (ScaleSource.METRIC)."""
+        with `scale_std` (default: the prior's) from `source` (default: GIVEN with a std under
+        the prior's, else PRIOR); a `metric` map's scale is 1, exactly and for good
+        (ScaleSource.METRIC)."""
         if metric:
             log_scale, scale_std = 0.0, 0.0
         self.converged = False
@@ -176,7 +177,7 @@ class NavFilter:
         x[THETA] = 0.0
         if scale_std is None:
             scale_std = self.cfg.scale_prior_std
-        self.scale_source = (ScaleSource.METRIC if metric
+        self.scale_source = (ScaleSource.METRIC if metric else source if source is not None
                              else ScaleSource.GIVEN if scale_std < self.cfg.scale_prior_std
                              else ScaleSource.PRIOR)
         for index, std in ((LOG_SCALE, scale_std),
@@ -231,15 +232,15 @@ class NavFilter:
         self.vo_disagreement = []
 
     def rescale(self, p_w: np.ndarray, R_n_b: np.ndarray, log_scale: float,
-                scale_std: float) -> None:
+                scale_std: float, source: ScaleSource = ScaleSource.FIT) -> None:
         """Replace the scale by an independent estimate (ln, std; climb_scale.py,
-        accel_scale.py) and put the vehicle where the map says it is at that scale; its
-        velocity is stretched by the same ratio, and both carry the new scale's error. Dead
-        reckoning at the old scale is dropped, and so is the barometer's offset,
-        which was fitted to it (the next reading re-references it)."""
+        accel_scale.py; the rangefinder's first reading: GIVEN) and put the vehicle where the
+        map says it is at that scale; its velocity is stretched by the same ratio, and both
+        carry the new scale's error. Dead reckoning at the old scale is dropped, and so is the
+        barometer's offset, which was fitted to it (the next reading re-references it)."""
         x, P = self.x, self.P
         if self._imu_carries():
-            self._rescale_map(p_w, R_n_b, log_scale, scale_std)
+            self._rescale_map(p_w, R_n_b, log_scale, scale_std, source)
             return
         ratio = float(np.exp(log_scale - x[LOG_SCALE]))
         m = self.R_nom @ (np.asarray(p_w, float) - self.p_w0)
@@ -265,7 +266,7 @@ class NavFilter:
         x[VEL] = velocity
         x[LOG_SCALE] = log_scale
         self.has_baro = False
-        self.scale_source = ScaleSource.FIT
+        self.scale_source = source
 
     def _imu_carries(self) -> bool:
         """Whether the IMU (with the barometer and rangefinder) carries the vehicle, not the
@@ -274,7 +275,7 @@ class NavFilter:
                 and np.sqrt(self.P[LOG_SCALE, LOG_SCALE]) > self.cfg.nav_scale_std)
 
     def _rescale_map(self, p_w: np.ndarray, R_n_b: np.ndarray, log_scale: float,
-                     scale_std: float) -> None:
+                     scale_std: float, source: ScaleSource) -> None:
         """rescale() of a filter whose IMU carries the vehicle (_imu_carries): it stays, and
         the map is hung from where it is, at the new scale. The anchor had followed the old
         scale's wandering (re-anchored at it; forget_scale drops the correlation): put where
@@ -287,7 +288,7 @@ class NavFilter:
         P[LOG_SCALE, LOG_SCALE] = scale_std**2
         self.x[LOG_SCALE] = log_scale
         self.has_baro = False
-        self.scale_source = ScaleSource.FIT
+        self.scale_source = source
 
     def _hang_map(self, p_w: np.ndarray, R_n_b: np.ndarray) -> None:
         """Make the map's point p_w the camera's position where the filter has the vehicle:

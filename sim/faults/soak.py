@@ -26,19 +26,19 @@ from pathlib import Path
 import numpy as np
 
 from daemon.config import Config, replace
-from daemon.run_command import tracker_factory
+from daemon.run_command import tracker_factory, warm_up
 from daemon.service import Service, prefer_handoffs
 from sim.autopilot import SimOptions
 from sim.datasets.layout import SensorSamples
 from sim.replay.autopilot_process import AutopilotProcess
 from sim.replay.flight import (
-    body_imu,
     drone_config,
+    recorded_sensors,
     resampled,
     sensor_streams,
     vehicle_trajectory,
 )
-from sim.replay.harness import ReplaySource, warm_up
+from sim.replay.harness import ReplaySource
 from sim.replay.preflight import WithPreflight
 from sim.replay.prerender import prerendered
 from sim.replay.replay_run import FirstFrames
@@ -167,13 +167,12 @@ def _serve_service(sequence: Sequence, config: Config, frames: int,
     config = replace(drone_config(config, sequence),
                      camera={"source": "testpattern", "calibration": ""})
     make_tracker = tracker_factory(config, sequence.camera)
-    warm_up(make_tracker, sequence)
+    warm_up(make_tracker, sequence.camera.width, sequence.camera.height)
     flight = vehicle_trajectory(sequence.groundtruth, config, sequence.extras.get("T_ned_world"))
     # armed after a pre-flight on the ground, as `sdvl replay` flies: a disarmed autopilot
     # says it is landed, and the fusion would hold a flying vehicle still
     autopilot = AutopilotProcess(SimOptions(streams=sensor_streams("ardupilot", flight)),
-                                 resampled(flight), body_imu(sequence),
-                                 sequence.extras.get("sensors"), arm=True)
+                                 resampled(flight), arm=True, **recorded_sensors(sequence))
     try:
         config = replace(config, mavlink={"link": autopilot.url})
         source = ReplaySource(WithPreflight(FirstFrames(sequence, frames)), True, 0.0,

@@ -33,6 +33,7 @@ START_METHOD = "forkserver"
 
 MAX_LEAD_S = 0.1
 PAD_S = 1.0  # the trajectory is held this long at both ends, so its derivatives stay defined
+PREFLIGHT_ERRORS_S = 2.0  # the pre-flight's attitude errs as the flight's does on average over this
 PILOT_TICK_S = 0.05
 
 
@@ -62,12 +63,19 @@ class ReplayVehicle:
     compass bias included."""
 
     def __init__(self, trajectory: Trajectory, clock: multiprocessing.Array,
-                 imu: ImuSamples | None = None, sensors: SensorSamples | None = None):
+                 imu: ImuSamples | None = None, sensors: SensorSamples | None = None,
+                 imu_bias: tuple[np.ndarray, np.ndarray] | None = None):
         self.inner = Vehicle(padded(trajectory))
         self.t_first, self.t_last = float(trajectory.t[0]), float(trajectory.t[-1])
         self.clock = clock
         self.imu = imu
         self.sensors = sensors
+        # the recorded attitude's mean error, which the pre-flight's attitude carries
+        self.attitude_error = self._mean_attitude_error() if sensors is not None else None
+        # the IMU's own (accel, gyro) bias at the flight's start, which the pre-flight's
+        # IMU carries (a synthetic flight's true bias at imu.t; a recorded one's is not known)
+        self.start_bias = (None if imu is None or imu_bias is None else
+                           tuple(_interp_rows(self.t_first, imu.t, b) for b in imu_bias))
 
     def sequence_time(self) -> float:
         """Where in the sequence the vehicle is now (before t_first: the pre-flight)."""
@@ -82,9 +90,36 @@ class ReplayVehicle:
         the recorded readings; sensor_message saturates the IMU readings like a real sensor's."""
         t = self.sequence_time()
         if t < self.t_first:  # standing in the pad that holds the first pose
-            state = self.inner.state(self.t_first - 0.5 * PAD_S - self.inner.t0)
-            return with_recordings(state, self.t_first, None, self.sensors)
+            return self._preflight()
         return with_recordings(self.inner.state(t - self.inner.t0), t, self.imu, self.sensors)
+
+    def _preflight(self) -> dict:
+        """Standing at the first pose: the IMU reads gravity plus its bias at the flight's
+        start (when known), the attitude the true pose with the mean error the flight's
+        attitude has over its first seconds. One attitude sample held for the whole pre-flight
+        froze its noise into a tilt the IMU did not show, the fusion took it for a 0.07 m/s^2
+        accelerometer bias, and in the climb its horizontal position left the map by 0.6 m
+        (sdvl replay, position NEES 15); an IMU without its bias on the ground taught the
+        fusion a bias of zero that the take-off then contradicted (NEES 4-5)."""
+        state = self.inner.state(self.t_first - 0.5 * PAD_S - self.inner.t0)
+        held = state["rotation"]
+        state = with_recordings(state, self.t_first, None, self.sensors)
+        if self.attitude_error is not None:
+            state["rotation"] = self.attitude_error * held
+        if self.start_bias is not None:
+            state["specific_force"] = state["specific_force"] + self.start_bias[0]
+            state["rates"] = state["rates"] + self.start_bias[1]
+        return state
+
+    def _mean_attitude_error(self) -> Rotation:
+        """The recorded attitude against the true one (N), averaged over the flight's first
+        PREFLIGHT_ERRORS_S (or the whole of a shorter one)."""
+        times = np.linspace(self.t_first, min(self.t_first + PREFLIGHT_ERRORS_S, self.t_last), 50)
+        truth = Rotation.concatenate([self.inner.state(t - self.inner.t0)["rotation"]
+                                      for t in times])
+        recorded = Rotation.from_quat(self.sensors.attitude[
+            [nearest_sample(self.sensors.t, t) for t in times]])
+        return (recorded * truth.inv()).mean()
 
 
 def with_recordings(state: dict, t: float, imu: ImuSamples | None,
@@ -144,12 +179,14 @@ class AutopilotProcess:
 
     def __init__(self, options: SimOptions | None = None,
                  trajectory: Trajectory | None = None, imu: ImuSamples | None = None,
-                 sensors: SensorSamples | None = None, arm: bool = False):
+                 sensors: SensorSamples | None = None, arm: bool = False,
+                 imu_bias: tuple[np.ndarray, np.ndarray] | None = None):
         ctx = multiprocessing.get_context(START_METHOD)
         self.clock = ctx.Array("d", [math.nan, math.nan])
         self._conn, child = ctx.Pipe()
         self._process = ctx.Process(
-            target=_serve, args=(child, options or configured_options(), trajectory, (imu, sensors),
+            target=_serve, args=(child, options or configured_options(), trajectory,
+                                 (imu, sensors, imu_bias),
                                  self.clock, arm),
             name="sim-autopilot", daemon=True)
         self._process.start()

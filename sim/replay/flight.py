@@ -103,6 +103,15 @@ def body_imu(sequence: object) -> ImuSamples | None:
     return imu if imu is not None and in_body else None
 
 
+def recorded_sensors(sequence: object) -> dict:
+    """What the replayed vehicle reads from the sequence's recordings (AutopilotProcess's
+    imu, sensors and imu_bias): its body IMU, a synthetic flight's attitude, barometer and
+    rangefinder, and its IMU's true bias (for the pre-flight)."""
+    extras = getattr(sequence, "extras", {})
+    return {"imu": body_imu(sequence), "sensors": extras.get("sensors"),
+            "imu_bias": extras.get("imu_bias")}
+
+
 def absent_sensors(flight: Trajectory | None, without: tuple[str, ...] = ()) -> frozenset[str]:
     """The sensor messages the replayed vehicle cannot send: those of the sensor kinds in
     `without` (SENSOR_STREAMS), and the rangefinder's unless the whole flight stays within its

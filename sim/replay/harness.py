@@ -20,16 +20,16 @@ import numpy as np
 
 from daemon.camera import SequenceSource, need_depth
 from daemon.config import Config, replace
-from daemon.run_command import tracker_factory
+from daemon.run_command import tracker_factory, warm_up
 from daemon.service import Service, prefer_handoffs
 from sdvl.errors import InputError
 from sim.autopilot import SimOptions, configured_options
 from sim.replay.autopilot_process import AutopilotProcess
 from sim.replay.flight import (
     absent_sensors,
-    body_imu,
     drone_config,
     is_ned,
+    recorded_sensors,
     resampled,
     vehicle_trajectory,
 )
@@ -96,23 +96,6 @@ def choose_estimator(config: Config, sequence: object, estimator: str) -> Config
     else:
         fusion = estimator == "fusion"
     return replace(config, fusion={"enabled": fusion})
-
-
-def warm_up(make_tracker: Callable, sequence: object) -> float:
-    """Run a throwaway tracker over the tracker's warm-up frames (vo.warm_up: a synthetic pan,
-    nothing rendered or read) so compiled kernels are loaded before the clock starts (a
-    drone's service is up before it flies); returns the seconds it took."""
-    from daemon.frames import Frame
-    from vo.warm_up import warm_up as warm_tracker
-
-    start = time.perf_counter()
-    width, height = sequence.camera.width, sequence.camera.height
-    tracker = make_tracker(Frame(0, 0.0, time.monotonic(), np.zeros((height, width), np.uint8)))
-    try:
-        warm_tracker(tracker.process, width, height)
-    finally:
-        tracker.close()
-    return time.perf_counter() - start
 
 
 async def _serve(service: Service, source: ReplaySource, recorder: Recorder,
@@ -184,12 +167,12 @@ def _replay_with_link(sequence: object, config: Config, plan: ReplayPlan, show: 
     with tempfile.TemporaryDirectory(prefix="sdvl-replay-") as folder:
         if plan.realtime and renders_on_the_fly(sequence):
             show.note(f"replay {sequence.name}: rendering the frames first")
-            warm_sequence = sequence
+            size = sequence.camera.width, sequence.camera.height
             sequence, warmup_s = prerendered(
                 sequence, Path(folder), len(show), show.rendered,
-                alongside=lambda: warm_up(make_tracker, warm_sequence))
+                alongside=lambda: warm_up(make_tracker, *size))
         else:
-            warmup_s = warm_up(make_tracker, sequence)
+            warmup_s = warm_up(make_tracker, sequence.camera.width, sequence.camera.height)
         return _replay(sequence, config, plan, show, make_tracker, warmup_s)
 
 
@@ -202,7 +185,7 @@ def _replay(sequence: object, config: Config, plan: ReplayPlan, show: Progress,
     frames = FirstFrames(sequence, plan.max_frames)
     drone = plan.realtime and config.fusion.enabled and flight is not None
     autopilot = AutopilotProcess(options, None if flight is None else resampled(flight),
-                                 body_imu(sequence), sequence.extras.get("sensors"), arm=drone)
+                                 arm=drone, **recorded_sensors(sequence))
     if drone:  # it stands on the ground first, powered on, and the pilot arms
         frames = WithPreflight(frames)
         flight = held_before(flight, frames.seconds)
