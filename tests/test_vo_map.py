@@ -1,6 +1,6 @@
 """Map storage: slot recycling is delayed, removing a keyframe drops what it hosts, the store
-stays bounded under churn, a keyframe observes only live points; quality classification of
-6.10."""
+stays bounded under churn, a keyframe observes only live points; the points seen for the
+keyframe policy count grid cells; quality classification of 6.10."""
 
 from __future__ import annotations
 
@@ -9,8 +9,9 @@ import numpy as np
 from calib.camera import CameraModel
 from vo.config import TrackerConfig
 from vo.frame import Frame
-from vo.map import CANDIDATE, DELETED, FREE, RELEASE_DELAY, Map
+from vo.map import CANDIDATE, CONVERGED, DELETED, FREE, RELEASE_DELAY, Map
 from vo.quality import LostCounter, classify
+from vo.reprojector import Reprojector
 
 
 def _add(store, n, host=0):
@@ -101,3 +102,34 @@ def test_quality_as_in_thesis():
     lost = LostCounter(cfg)
     assert [lost.update(q) for q in ("bad", "bad", "good", "bad", "bad", "bad")] == [
         False, False, False, False, False, True]
+
+
+def test_points_seen_for_keyframes_count_grid_cells():
+    """The keyframe policy's count of points seen (Matches.n_visible) is the number of grid
+    cells map points project into, not the points: points crowded into one cell (a camera
+    climbing along its axis) count once, as tracking matches one point per cell."""
+    cam = CameraModel(128, 96, 100.0, 100.0, 63.5, 47.5)
+    config = TrackerConfig(grid_cell=32)
+    m = Map(128, 96, 3, 5)
+    image = np.random.default_rng(0).integers(0, 255, (96, 128), dtype=np.uint8)
+    kf = Frame(0, 0.0, image, cam, 3)
+    kf.T_c_w = np.eye(4)
+    slot = m.add_keyframe(kf)
+    crowded = np.array([[40.0 + k, 40.0 + k] for k in range(6)])  # six points in one cell
+    spread = np.array([[20.0, 20.0], [50.0, 70.0], [100.0, 20.0], [100.0, 70.0]])
+    px = np.vstack([crowded, spread])
+    ids = m.points.add(slot, px[:, 0], px[:, 1], np.zeros(len(px), np.int64), cam.unproject(px),
+                       np.ones(len(px)), np.full(len(px), 0.01), np.full(len(px), 2.0), 10.0,
+                       10.0, np.eye(4))
+    m.points.status[ids] = CONVERGED
+    cur = Frame(1, 0.1, image, cam, 3)
+    cur.T_c_w = np.eye(4)
+    reprojector = Reprojector(cam, config)
+    n_visible = reprojector.run(cur, m, ids, np.zeros(len(ids), bool))[3]
+    assert n_visible == 1 + len(spread)
+    # points not matched in kf_cell_max_unmatched frames in a row leave the count: a spread
+    # point's cell goes, the crowded cell stays while one of its points is still matched
+    m.points.n_unmatched[ids[-1]] = config.kf_cell_max_unmatched
+    m.points.n_unmatched[ids[:5]] = config.kf_cell_max_unmatched + 3
+    m.points.n_unmatched[ids[5]] = config.kf_cell_max_unmatched - 1
+    assert reprojector.run(cur, m, ids, np.zeros(len(ids), bool))[3] == len(spread)

@@ -3,6 +3,7 @@ plane with a large object moving through the view."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from test_vo_tracker import _flight
@@ -88,16 +89,34 @@ def flights(data_dir):
     return cam, calm, busy, gt
 
 
-def _ate(cam, frames, gt, rejection: bool) -> tuple[float, int]:
+def _inliers_on_mover(tracker: Tracker, stamp: float, image: np.ndarray,
+                      still: np.ndarray) -> int:
+    """How many pose inliers of the frame just tracked (at stamp) lie where image differs from
+    `still`, the same view without the moving objects (the difference grown by 2 px)."""
+    last = tracker.last
+    if last is None or last.t != stamp or not len(last.feat_px):
+        return 0
+    mover = cv2.dilate((cv2.absdiff(image, still) > 8).astype(np.uint8), np.ones((5, 5), np.uint8))
+    h, w = image.shape
+    u = np.clip(np.round(last.feat_px[:, 0]).astype(int), 0, w - 1)
+    v = np.clip(np.round(last.feat_px[:, 1]).astype(int), 0, h - 1)
+    return int(mover[v, u].sum())
+
+
+def _ate(cam, frames, gt, rejection: bool, still=None) -> tuple[float, int, int]:
+    """ATE (Sim(3)), frames tracked and, given the frames without the mover (`still`), the pose
+    inliers on the mover over the flight."""
     tracker = Tracker(cam, TrackerConfig(outlier_rejection=rejection))
-    t, T = [], []
-    for stamp, image in frames:
+    t, T, on_mover = [], [], 0
+    for k, (stamp, image) in enumerate(frames):
         r = tracker.process(image, stamp)
         if r.has_pose:
             t.append(stamp)
             T.append(r.T_w_c)
+            if still is not None:
+                on_mover += _inliers_on_mover(tracker, stamp, image, still[k][1])
     est = Trajectory.from_matrices(np.array(t), np.array(T))
-    return evaluate(gt, est, "sim3").ate_rmse_m, len(t)
+    return evaluate(gt, est, "sim3").ate_rmse_m, len(t), on_mover
 
 
 def _poses(cam, frames, seed: int) -> np.ndarray:
@@ -117,37 +136,53 @@ def test_a_seeded_run_repeats_bit_for_bit(flights):
 
 def test_rejection_keeps_a_moving_object_out_of_the_pose(flights):
     cam, calm, busy, gt = flights
-    calm_ate, _ = _ate(cam, calm, gt, True)
-    with_rejection, n_with = _ate(cam, busy, gt, True)
-    without, _ = _ate(cam, busy, gt, False)
+    calm_ate, _, _ = _ate(cam, calm, gt, True)
+    with_rejection, n_with, on_with = _ate(cam, busy, gt, True, calm)
+    without, _, on_without = _ate(cam, busy, gt, False, calm)
     assert n_with >= 0.9 * len(busy)
-    # the object stays out of the pose: near the calm flight's error, and well below the error
-    # without rejection (where the robust sparse alignment alone already discounts it)
+    # the object stays out of the pose: near the calm flight's error, below the error without
+    # rejection, and under 60% of the matches on the board the pose takes without rejection
+    # (0.39-0.43 over RANSAC seeds 0-4; 1.15 with 50 px thresholds). Not the ATE against the
+    # run without rejection below a ratio: the keyframe policy moves that one (0.84-0.95 x
+    # with grid-cell keyframes, 0.56 x with inlier counts; RESULTS.md: tracker-kf-cells-movers)
     assert with_rejection <= 1.5 * calm_ate
-    assert with_rejection < 0.75 * without
+    assert with_rejection < without
+    assert on_with < 0.6 * on_without
 
 
 WALKERS_SIZE = (320, 240)
 
 
-def _track_walkers(preset: str, rejection: bool) -> tuple[float, int, int]:
-    """ATE (Sim(3)), frames tracked and frames of the walkers flight at WALKERS_SIZE."""
+def _track_walkers(rejection: bool) -> tuple[float, int, int, int]:
+    """ATE (Sim(3)), frames tracked, frames of the walkers flight at WALKERS_SIZE, and the pose
+    inliers on people once the group has walked off."""
     from sim.synth.flight import synthetic_sequence
-    from sim.track_command import track_sequence
+    from sim.synth.presets import walkers
 
-    seq = synthetic_sequence(preset, size=WALKERS_SIZE, textures="procedural")
-    report, _ = track_sequence(seq, TrackerConfig(outlier_rejection=rejection), False, None,
-                               True)
-    return report["ate_rmse_m"], report["tracked"], report["frames"]
+    crowd = [w for w in walkers(0, "procedural").scene.movers if w.pause > 0]
+    walked_off = max(w.t_start + w.pause_after + w.pause for w in crowd)
+    seq, empty = (synthetic_sequence(p, size=WALKERS_SIZE, textures="procedural")
+                  for p in ("walkers", "walkers-empty"))
+    tracker = Tracker(seq.camera, TrackerConfig(outlier_rejection=rejection))
+    t, T, on_people = [], [], 0
+    for (stamp, image), (_, still) in zip(seq.frames(None), empty.frames(None), strict=True):
+        r = tracker.process(image, stamp)
+        if r.has_pose:
+            t.append(stamp)
+            T.append(r.T_w_c)
+            if stamp >= walked_off:
+                on_people += _inliers_on_mover(tracker, stamp, image, still)
+    est = Trajectory.from_matrices(np.array(t), np.array(T))
+    return evaluate(seq.groundtruth, est, "sim3").ate_rmse_m, len(t), len(seq), on_people
 
 
 def test_rejection_keeps_people_who_walk_off_out_of_the_pose():
-    calm, _, _ = _track_walkers("walkers-empty", True)
-    with_rejection, tracked, frames = _track_walkers("walkers", True)
-    without, _, _ = _track_walkers("walkers", False)
-    assert tracked >= 0.9 * frames
-    # people who walk off stay out of the pose; issue #5's 1.5x of the empty square is not met,
-    # for want of known ground under the hold, not of rejection (RESULTS.md:
-    # tracker-walkers-rejection)
-    assert with_rejection <= 2.5 * calm
-    assert with_rejection < 0.35 * without
+    with_rejection, tracked, frames, on_with = _track_walkers(True)
+    _, _, _, on_without = _track_walkers(False)
+    assert tracked >= 0.9 * frames and with_rejection < 0.1
+    # the people who walk off stay out of the pose: it takes under 60% of the matches on them
+    # it takes without rejection (0.39-0.45 over RANSAC seeds 0-4, 0.79 with 50 px thresholds).
+    # The ATE only against a lost flight: it follows the RANSAC seed (0.030-0.053 m, 0.038
+    # without rejection) and the keyframe policy, its excess over the empty square made while
+    # the people still stand (RESULTS.md: tracker-kf-cells-movers)
+    assert on_with < 0.6 * on_without

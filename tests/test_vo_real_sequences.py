@@ -1,5 +1,5 @@
-"""Whole real sequences through the tracker (sequential mode): VAMR and KITTI 00 (its preset)
-accuracy, TUM fr1/rpy runs to the end with every frame accounted for."""
+"""Whole real sequences through the tracker (sequential mode): VAMR and KITTI 00 (defaults and its
+preset) accuracy, TUM fr1/rpy runs to the end with every frame accounted for."""
 
 from __future__ import annotations
 
@@ -40,9 +40,20 @@ def test_vamr_checkerboard_full(data_dir):
 
 
 def test_tum_rpy_runs_through(data_dir):
+    # fast rotations at 2-3.5 deg/frame: the map is lost once near frame 355 and a new one taken
+    # (issue 31 wants one map; RESULTS.md: tracker-kf-cell-streak)
     _, est, qualities, segments = _track(data_dir / "tum_fr1_rpy")
     assert len(qualities) == 723
-    assert segments >= 1 and len(est) >= 0.8 * 723
+    assert segments <= 2 and len(est) >= 680
+
+
+def test_kitti_with_defaults_keeps_one_map(data_dir):
+    # the 80-degree turn at up to 3.7 deg/frame: keyframes come as the map's points leave the
+    # grid cells (with inlier counts it was lost: 165/200 in 3 maps, 33.6 m)
+    seq, est, qualities, segments = _track(data_dir / "kitti00_first200")
+    assert len(qualities) == 200
+    assert len(est) >= 198 and segments == 1
+    assert evaluate(seq.groundtruth, est, "sim3").ate_rmse_m <= 5.0
 
 
 def test_kitti_with_its_preset_meets_the_acceptance(data_dir):

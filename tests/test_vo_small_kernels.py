@@ -78,14 +78,18 @@ def test_found_missed_counts_against_set_difference():
     attempted = np.sort(rng.choice(300, 120, replace=False))
     ids = rng.permutation(attempted)[:70]
     inlier = rng.random(70) < 0.8
-    found, missed_counts = n_found.copy(), n_missed.copy()
-    hopeless = _count_found_missed(found, missed_counts, ids, inlier, attempted, 10)
-    ref_found, ref_missed = n_found.copy(), n_missed.copy()
+    n_unmatched = rng.integers(0, 4, 300)
+    found, missed_counts, streak = n_found.copy(), n_missed.copy(), n_unmatched.copy()
+    hopeless = _count_found_missed(found, missed_counts, streak, ids, inlier, attempted, 10)
+    ref_found, ref_missed, ref_streak = n_found.copy(), n_missed.copy(), n_unmatched.copy()
     ref_found[ids[inlier]] += 1
     missed = np.setdiff1d(attempted, ids)
     ref_missed[missed] += 1
+    ref_streak[attempted] += 1
+    ref_streak[ids] = 0
     keep = (ref_missed[missed] > 10) & (ref_missed[missed] > 2 * ref_found[missed])
     assert np.array_equal(found, ref_found) and np.array_equal(missed_counts, ref_missed)
+    assert np.array_equal(streak, ref_streak) and (streak[missed] > 0).all()
     assert np.array_equal(hopeless, missed[keep]) and len(hopeless) > 0
 
 

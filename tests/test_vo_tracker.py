@@ -90,8 +90,8 @@ def test_keyframe_reference_counts_the_keyframes_new_candidates():
     """A keyframe made where few points were seen: its new candidates, in use after
     candidate_min_updates depth updates, raise the reference, so losing 30% of them brings the
     next keyframe (with the bare count of 40 it came far too late on kitti00's turn). This is
-    the projected-points count of the kitti_10hz preset. The window counts frames mapped
-    since the keyframe (a lagging mapping thread updates the candidates later)."""
+    the default count (grid cells with map points). The window counts frames mapped since the
+    keyframe (a lagging mapping thread updates the candidates later)."""
     tracker = Tracker(small_camera(), TrackerConfig(candidate_min_updates=1, kf_min_frames=30,
                                                     kf_count_inliers=False))
     policy = tracker.tracking.keyframes

@@ -134,10 +134,17 @@ class TrackerConfig:
     # inliers stay below 50, so a keyframe comes every kf_min_frames, also while hovering)
     kf_min_points: int = 50
     # count the points seen as the frame's inlier matches (as the original SDVL does), else as
-    # the map points projecting inside the image: those stay "visible" while the camera climbs
-    # along its optical axis, but they crowd into fewer grid cells (one match per cell), so the
-    # matches fall and no keyframe comes
-    kf_count_inliers: bool = True
+    # the grid cells that map points project into (tracking matches one point per cell). The
+    # inliers of a keyframe taken in a weak moment (kitti00's turn: 7) held the next keyframe
+    # back until kf_min_frames, and the map was lost; map points projecting inside the image
+    # (cells or not) stay "visible" while the camera climbs along its optical axis and no
+    # keyframe came (hover-down 0.293 m); cells: kitti00 in one map, tum_fr1_rpy 722/723 in
+    # one (RESULTS.md: tracker-kf-cells)
+    kf_count_inliers: bool = False
+    # a point tried and not matched in this many tracked frames in a row no longer counts toward
+    # its cell (points on people who walked off still project there); 5 lost kitti00's map
+    # from one of six start frames (RESULTS.md: tracker-kf-cell-streak)
+    kf_cell_max_unmatched: int = 10
     max_keyframes: int = 30
     covisible_min_shared: int = 10
     # threaded mapping: at most this many tracked frames wait for (or are in) their mapping

@@ -53,6 +53,7 @@ LIMITS = {
     "kf_points_ratio": SHARE,
     "lost_points_ratio": SHARE,
     "kf_min_points": COUNT,
+    "kf_cell_max_unmatched": SOME,
     # each keyframe keeps its image pyramid and corners (~1 MB at 640x480): the map's memory
     "max_keyframes": interval(3, 1000, why="the map's memory grows with it"),
     "covisible_min_shared": SOME,

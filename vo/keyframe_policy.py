@@ -30,7 +30,7 @@ class KeyframePolicy:
         (else a keyframe taken with few points keeps the reference low and the next one comes
         too late). The window counts the frames mapped since the keyframe, not those tracked:
         a mapping thread that lags updates the candidates later. It applies to the count of
-        projected points only: with inlier counts (the default) it took keyframes too often."""
+        grid cells with map points only: with inlier counts it took keyframes too often."""
         self.frames_since_kf += 1
         if self.kf_visible is None:
             self.kf_visible = n_seen

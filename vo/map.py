@@ -26,7 +26,8 @@ class PointStore:
     """Structure-of-arrays store of map points with slot recycling."""
 
     FLOAT_COLS = ("u", "v", "rho", "sigma", "a", "b", "rho_range")
-    INT_COLS = ("host", "level", "n_found", "n_failed", "n_missed", "n_updates", "n_rejected")
+    INT_COLS = ("host", "level", "n_found", "n_failed", "n_missed", "n_updates", "n_rejected",
+                "n_unmatched")
 
     def __init__(self, capacity: int = 1024, levels: int = 5):
         self.capacity = 0
@@ -82,6 +83,7 @@ class PointStore:
         self.n_missed[idx] = 0
         self.n_updates[idx] = 0
         self.n_rejected[idx] = 0
+        self.n_unmatched[idx] = 0
         self.desc_state[idx] = UNKNOWN
         self.update_positions(idx, T_w_host)
         return idx

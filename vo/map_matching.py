@@ -32,7 +32,7 @@ class Matches:
     ids: np.ndarray
     uv: np.ndarray
     levels: np.ndarray
-    n_visible: int
+    n_visible: int  # grid cells the usable map points project into
     n_attempts: int
     attempted: np.ndarray
     inlier: np.ndarray
@@ -106,12 +106,12 @@ class MapMatcher:
             self.count(m)
 
     def count(self, m: Matches) -> None:
-        """Update the found/missed (and rejected) counts of the points of an accepted frame's
-        matches m; points that keep failing leave the map."""
+        """Update the found/missed/unmatched (and rejected) counts of the points of an
+        accepted frame's matches m; points that keep failing leave the map."""
         cfg = self.config
         pts = self.map.points
-        hopeless = _count_found_missed(pts.n_found, pts.n_missed, m.ids, m.inlier, m.attempted,
-                                       cfg.point_max_missed)
+        hopeless = _count_found_missed(pts.n_found, pts.n_missed, pts.n_unmatched, m.ids,
+                                       m.inlier, m.attempted, cfg.point_max_missed)
         if cfg.outlier_rejection:
             self._forget_rejected(m.ids, m.inlier)
         pts.delete(hopeless)
@@ -173,14 +173,18 @@ class MapMatcher:
 
 
 @numba.njit(cache=True, nogil=True)
-def _count_found_missed(n_found, n_missed, ids, inlier, attempted, max_missed):
+def _count_found_missed(n_found, n_missed, n_unmatched, ids, inlier, attempted, max_missed):
     """MapMatcher.count's counts: +1 found for the inliers among the matched points ids, +1
-    missed for the attempted points not matched; returns those missed that keep failing
-    (occluded, badly placed, moving: more than max_missed misses and twice their finds),
-    which leave the map. `attempted` is sorted; so is the result."""
+    missed for the attempted points not matched, and the streak n_unmatched of frames in a
+    row an attempted point was not matched (0 for the matched); returns those missed that
+    keep failing (occluded, badly placed, moving: more than max_missed misses and twice their
+    finds), which leave the map. `attempted` is sorted; so is the result."""
     matched = np.zeros(n_found.shape[0], dtype=np.bool_)
+    for p in attempted:
+        n_unmatched[p] += 1
     for j in range(ids.shape[0]):
         matched[ids[j]] = True
+        n_unmatched[ids[j]] = 0
         if inlier[j]:
             n_found[ids[j]] += 1
     hopeless = np.empty(attempted.shape[0], dtype=np.int64)

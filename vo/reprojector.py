@@ -196,7 +196,10 @@ class Reprojector:
         """Match points `idx` of the map in `frame` (pose T_c_w set to its prior); those
         flagged `uncertain` are searched along their epipolar segments.
 
-        Returns (point ids, uv (M, 2), levels, n_visible, n_attempts, attempted point ids).
+        Returns (point ids, uv (M, 2), levels, n_visible, n_attempts, attempted point ids);
+        n_visible counts the grid cells the usable points project into (one match per cell:
+        what tracking can match at most), less points that have kept failing
+        (kf_cell_max_unmatched).
         """
         cands = self._candidates(frame, map_, idx, uncertain)
         if cands is None:
@@ -218,7 +221,9 @@ class Reprojector:
             orb = OrbQuery.patches(len(idx), cfg.pyramid_levels)
         tried = np.zeros(len(idx), dtype=np.bool_)
         k, uv, level = self._match_passes(frame, map_, cands[:-1], corners, orb, tried)
-        return idx[k], uv, level, len(idx), int(tried.sum()), idx[tried]
+        live = pts.n_unmatched[idx] < cfg.kf_cell_max_unmatched
+        n_cells = len(np.unique(cands[2][live]))
+        return idx[k], uv, level, n_cells, int(tried.sum()), idx[tried]
 
     def _candidates(self, frame: Frame, map_: Map, idx: np.ndarray, uncertain: np.ndarray):
         """The candidate table of match_in_cells for the points idx visible in frame, with
