@@ -153,10 +153,11 @@ def test_rejection_keeps_a_moving_object_out_of_the_pose(flights):
 WALKERS_SIZE = (320, 240)
 
 
-def _track_walkers() -> dict[bool, tuple[float, int, int, int]]:
-    """With and without rejection (the key): ATE (Sim(3)), frames tracked, frames of the walkers
-    flight at WALKERS_SIZE, and the pose inliers on people once the group has walked off. Both
-    trackers see each rendered frame, so the flight and its empty twin are rendered once."""
+def _track_walkers() -> dict[str, tuple[float, int, int, int]]:
+    """Three runs (the key): the walkers flight at WALKERS_SIZE "with" and "without" rejection,
+    and its "empty" twin (no people) with it; each: ATE (Sim(3)), frames tracked, frames, and
+    the pose inliers on people once the group has walked off. The trackers take turns on each
+    rendered frame, so both flights are rendered once."""
     from sim.synth.flight import synthetic_sequence
     from sim.synth.presets import walkers
 
@@ -164,32 +165,35 @@ def _track_walkers() -> dict[bool, tuple[float, int, int, int]]:
     walked_off = max(w.t_start + w.pause_after + w.pause for w in crowd)
     seq, empty = (synthetic_sequence(p, size=WALKERS_SIZE, textures="procedural")
                   for p in ("walkers", "walkers-empty"))
-    runs = {on: (Tracker(seq.camera, TrackerConfig(outlier_rejection=on)), [], [], [0])
-            for on in (True, False)}
+    runs = {name: (Tracker(seq.camera, TrackerConfig(outlier_rejection=on)), [], [], [0])
+            for name, on in (("with", True), ("without", False), ("empty", True))}
     for (stamp, image), (_, still) in zip(seq.frames(None), empty.frames(None), strict=True):
-        for tracker, t, T, on_people in runs.values():
-            r = tracker.process(image, stamp)
+        for name, (tracker, t, T, on_people) in runs.items():
+            seen = still if name == "empty" else image
+            r = tracker.process(seen, stamp)
             if r.has_pose:
                 t.append(stamp)
                 T.append(r.T_w_c)
                 if stamp >= walked_off:
-                    on_people[0] += _inliers_on_mover(tracker, stamp, image, still)
+                    on_people[0] += _inliers_on_mover(tracker, stamp, seen, still)
     out = {}
-    for on, (_, t, T, on_people) in runs.items():
+    for name, (_, t, T, on_people) in runs.items():
         est = Trajectory.from_matrices(np.array(t), np.array(T))
-        out[on] = (evaluate(seq.groundtruth, est, "sim3").ate_rmse_m, len(t), len(seq),
-                   on_people[0])
+        out[name] = (evaluate(seq.groundtruth, est, "sim3").ate_rmse_m, len(t), len(seq),
+                     on_people[0])
     return out
 
 
 def test_rejection_keeps_people_who_walk_off_out_of_the_pose():
     runs = _track_walkers()
-    with_rejection, tracked, frames, on_with = runs[True]
-    on_without = runs[False][3]
-    assert tracked >= 0.9 * frames and with_rejection < 0.1
+    with_rejection, tracked, frames, on_with = runs["with"]
+    on_without = runs["without"][3]
+    assert tracked >= 0.9 * frames
     # the people who walk off stay out of the pose: it takes under 60% of the matches on them
     # it takes without rejection (0.39-0.45 over RANSAC seeds 0-4, 0.79 with 50 px thresholds).
-    # The ATE only against a lost flight: it follows the RANSAC seed (0.030-0.053 m, 0.038
-    # without rejection) and the keyframe policy, its excess over the empty square made while
-    # the people still stand (RESULTS.md: tracker-kf-cells-movers)
+    # The ATE follows the RANSAC seed (0.030-0.053 m, 0.038 without rejection) and the keyframe
+    # policy, its excess over the empty square made while the people still stand (RESULTS.md:
+    # tracker-kf-cells-movers): within 4x the empty square's (2.7x here; 2.0x with the
+    # inlier-count keyframes)
     assert on_with < 0.6 * on_without
+    assert with_rejection <= 4.0 * runs["empty"][0]
