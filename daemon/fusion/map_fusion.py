@@ -229,10 +229,9 @@ class MapFusion:
         or map_depth_units on the map's first frame (the tracker scales a new map so); without
         the rangefinder, the height above where the vehicle stood at the start (flat ground
         assumed, the std says how sure); else the last map's scale or the configured guess
-        with the wide prior (None). A map
-        started after the climb without a rangefinder had only the IMU's fit left, which a
-        hover does not give: the IMU carried the vehicle alone and the autopilot's EKF
-        failsafed on 9 of 10 seeds."""
+        with the wide prior (None). A map started after the climb without a rangefinder had
+        only the IMU's fit left, which a hover does not give: the IMU carried the vehicle
+        alone and the autopilot's EKF failsafed on 9 of 10 seeds."""
         cfg, f = self.cfg, self.filter
         units = self._map_height_units(frame, R_n_b @ frame.R_w_b.T)
         if units is None and frame.fresh:
