@@ -17,14 +17,21 @@ from vo.se3 import exp_se3
 from vo.tracker import Tracker
 
 
-def _reference_ransac(pos_w, obs, scale, T_prior, subsets, threshold, p):
-    """Eq. 6.12 RANSAC written plainly: numerical Jacobians, Python loops; hypotheses fitted with
-    the level weights, inliers by the unweighted error."""
+def _reference_ransac(pos_w, obs, scale, T_prior, subsets, threshold, p, T_first):
+    """Eq. 6.12 RANSAC written plainly: numerical Jacobians, Python loops; T_first the first
+    hypothesis, the others fitted with the level weights; inliers by the unweighted error."""
     def errors(T, idx, weight=scale):
         X = pos_w[idx] @ T[:3, :3].T + T[:3, 3]
         return ((obs[idx] - X[:, :2] / X[:, 2:]) * weight[idx, None]).ravel()
 
-    best, best_count, needed, tried = None, -1, len(subsets), 0
+    def needed_for(count):
+        w = (count / len(pos_w)) ** orj.SUBSET
+        return 1 if w >= 1 else min(len(subsets), int(np.ceil(np.log(1 - p) / np.log(1 - w))))
+
+    err = errors(T_first, np.arange(len(pos_w)), np.ones(len(pos_w))).reshape(-1, 2)
+    best = (err ** 2).sum(axis=1) < threshold ** 2
+    best_count, tried = best.sum(), 0
+    needed = needed_for(best_count) if best_count else len(subsets)
     while tried < needed:
         T = T_prior.copy()
         for _ in range(orj.HYPOTHESIS_ITERATIONS):
@@ -37,9 +44,7 @@ def _reference_ransac(pos_w, obs, scale, T_prior, subsets, threshold, p):
         inlier = (err ** 2).sum(axis=1) < threshold ** 2
         if inlier.sum() > best_count:
             best, best_count = inlier, inlier.sum()
-            w = (best_count / len(pos_w)) ** orj.SUBSET
-            needed = 1 if w >= 1 else min(len(subsets),
-                                          int(np.ceil(np.log(1 - p) / np.log(1 - w))))
+            needed = needed_for(best_count)
     return best, tried
 
 
@@ -54,14 +59,20 @@ def test_ransac_matches_the_reference_and_finds_the_outliers():
     obs[outliers] += rng.uniform(0.02, 0.05, (30, 2)) * rng.choice([-1, 1], (30, 2))
     scale = 1.0 / 2.0 ** rng.integers(0, 3, n)
     subsets = orj.random_subsets(n, 100, 7)
-    args = (pos_w, obs, scale, np.eye(4), subsets, 2.0 / 500, 0.99)
-    inlier, tried = orj.ransac(*args)
-    ref_inlier, ref_tried = _reference_ransac(*args)
-    assert np.array_equal(inlier, ref_inlier) and tried == ref_tried
     truth = np.ones(n, bool)
     truth[outliers] = False
-    assert np.array_equal(inlier, truth)
-    assert tried < 100  # 37% outliers: eq. 6.12 asks for about 45 hypotheses
+    # random subsets; then subsets of outliers only (as when blur leaves no 5 matches that
+    # agree), without and with a good first hypothesis (the robust fit to all matches)
+    hopeless = outliers[orj.random_subsets(30, 100, 3)]
+    cases = [(np.eye(4), subsets, True), (np.eye(4), hopeless, False), (T_true, hopeless, True)]
+    for T_first, rows, finds_them in cases:
+        args = (pos_w, obs, scale, np.eye(4), rows, 2.0 / 500, 0.99, T_first)
+        inlier, tried = orj.ransac(*args)
+        ref_inlier, ref_tried = _reference_ransac(*args)
+        assert np.array_equal(inlier, ref_inlier) and tried == ref_tried
+        assert np.array_equal(inlier, truth) == finds_them
+        if finds_them:
+            assert tried < 100  # 37% outliers: eq. 6.12 asks for about 45 hypotheses
 
 
 def _mover(frame: np.ndarray, i: int, tex: np.ndarray) -> np.ndarray:

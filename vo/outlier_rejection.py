@@ -79,14 +79,15 @@ def hypotheses_needed(n_inliers, n, p, cap):
 
 
 @numba.njit(cache=True, nogil=True)
-def ransac(pos_w, obs, scale, T_prior, subsets, threshold, p):
-    """Inlier mask of the best hypothesis over the rows of `subsets` (at most all of them,
-    fewer once eq. 6.12 is satisfied) and the number of hypotheses tried."""
+def ransac(pos_w, obs, scale, T_prior, subsets, threshold, p, T_first):
+    """Inlier mask of the best hypothesis, T_first (a pose fitted to all matches) or one fitted
+    to a row of `subsets` (at most all of them, fewer once eq. 6.12 is satisfied), and the
+    number of subsets tried."""
     n = pos_w.shape[0]
     thr2 = threshold * threshold
-    best = np.zeros(n, dtype=np.bool_)
-    best_count = -1
-    needed = subsets.shape[0]
+    best = squared_errors(pos_w, obs, T_first) < thr2
+    best_count = best.sum()
+    needed = hypotheses_needed(best_count, n, p, subsets.shape[0])
     tried = 0
     while tried < needed:
         T = fit_subset(pos_w, obs, scale, subsets[tried], T_prior, HYPOTHESIS_ITERATIONS)
