@@ -64,7 +64,7 @@ class TrackerConfig:
     # outlier rejection (6.8): RANSAC over 5-point subsets of the matches, inliers within
     # ransac_threshold_px (image pixels), hypotheses for ransac_probability at most
     # ransac_max_hypotheses; then outliers within ransac_rescue_px of the inlier pose rejoin.
-    # On by default: kitti00 0.74 m mean over tracker seeds 0-9 instead of 2.79 m, tum 687/723
+    # On by default: kitti00 0.86 m mean over tracker seeds 0-9 (2.79 m off at seed 0), tum 687/723
     # (RESULTS.md: tracker-rejection-default)
     outlier_rejection: bool = True
     ransac_threshold_px: float = 2.0
