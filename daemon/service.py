@@ -79,6 +79,7 @@ class ServiceStats:
     skipped_stale: int = 0
     skipped_duplicate: int = 0
     skipped_not_finite: int = 0
+    skipped_no_link: int = 0  # estimates the link could not take (not open yet, or gone)
     bridged: int = 0  # estimates carried over a stall of the camera or tracker
     obstacle_scans: int = 0  # OBSTACLE_DISTANCE messages sent
     timesync_replies: int = 0
@@ -348,12 +349,16 @@ class Service:
                 log.error("an estimate with NaN or infinity was not sent (counted from now on)")
             return False
         mav, output = self.codec.mav, self.cfg.mavlink.output
+        taken = []
         if output in ("odometry", "both"):
-            self.codec.send(messages.odometry(mav, e))
+            taken.append(self.codec.send(messages.odometry(mav, e)))
         if output in ("vision_position", "both"):
-            self.codec.send(messages.vision_position(mav, e))
+            taken.append(self.codec.send(messages.vision_position(mav, e)))
             if self.cfg.mavlink.vision_speed:
                 self.codec.send(messages.vision_speed(mav, e))
+        if not any(taken):  # the link is not open (yet, or any more): nothing went out
+            self.stats.skipped_no_link += 1
+            return False
         self._last_sent_t = e.t_capture
         self.stats.sent += 1
         self.stats.send_latency_s.append(time.monotonic() - e.t_capture)

@@ -34,7 +34,7 @@ def test_a_stall_is_bridged_from_its_start_to_its_limit():
     service = Service(cfg, TestPatternSource(64, 48, 30.0), lambda frame: FakeTracker(),
                       estimator=estimator)
     sent: list[object] = []
-    service.codec.send = sent.append
+    service.codec.send = lambda msg: sent.append(msg) or True  # the transport took it
     service.tracking = type("Tracking", (), {"gate": type("Gate", (), {
         "done": staticmethod(lambda t: None)})()})()
     tracker, now = FakeTracker(), time.monotonic()
