@@ -41,3 +41,14 @@ def _frame_cache_of_this_run(tmp_path_factory):
         del os.environ["SDVL_CACHE_DIR"]
     else:
         os.environ["SDVL_CACHE_DIR"] = before
+
+
+@pytest.fixture
+def quick_autopilot_probe(monkeypatch):
+    """Shorter listening, pre-arm wait and stream settling for `sdvl check-autopilot` than a
+    real autopilot gets: the simulated one streams at once and answers within milliseconds."""
+    from daemon import autopilot_probe, streams
+
+    monkeypatch.setattr(autopilot_probe, "LISTEN_S", 1.0)
+    monkeypatch.setattr(autopilot_probe, "PREARM_WAIT_S", 0.5)
+    monkeypatch.setattr(streams, "SETTLE_S", 1.5)

@@ -7,20 +7,12 @@ import socket
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
-from daemon import autopilot_probe, streams
 from daemon.autopilot_params import CheckContext, Finding, Severity, from_wire, wire_value
 from sdvl.cli import main
 from sim.autopilot import Release, SimAutopilot, SimOptions, configured_options
 from sim.autopilot.params import INT32
 
-
-@pytest.fixture(autouse=True)
-def short_waits(monkeypatch):
-    """Shorter listening and settling than a real autopilot gets: the simulated one streams at
-    once and answers within milliseconds."""
-    monkeypatch.setattr(autopilot_probe, "LISTEN_S", 1.0)
-    monkeypatch.setattr(autopilot_probe, "PREARM_WAIT_S", 0.5)
-    monkeypatch.setattr(streams, "SETTLE_S", 1.5)
+pytestmark = pytest.mark.usefixtures("quick_autopilot_probe")
 
 
 def check(sim: SimAutopilot, capsys, *extra: str) -> tuple[int, list[str]]:

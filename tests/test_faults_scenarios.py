@@ -26,11 +26,21 @@ def flight() -> fusion_sim.Flight:
 SERVICE_SIDE = ["second-system", "stray-highres-imu", "false-reboot-10s-back",
                 "false-reboot-60s-ahead", "garbage-1mb", "reboot"]
 SILENT = {"reboot"}  # no IMU or attitude for 2 s
+FUSION_SIDE = ["imu-mutated", "all-mutated", "link-loss-5s", "landed-while-flying",
+               "cpu-starved"]
 
 
 @pytest.fixture(scope="module")
-def service_side(flight):
-    return {s.scenario: s for s in run_scenarios(flight, SERVICE_SIDE, seed=3, window=WINDOW)}
+def scenarios(flight):
+    """Every scenario below on the flight, scored against one clean run (each draws its faults
+    from its own seeded generator: the same scores as run alone)."""
+    return {s.scenario: s for s in run_scenarios(flight, SERVICE_SIDE + FUSION_SIDE, seed=3,
+                                                 window=WINDOW)}
+
+
+@pytest.fixture(scope="module")
+def service_side(scenarios):
+    return {name: scenarios[name] for name in SERVICE_SIDE}
 
 
 @pytest.mark.parametrize("name", SERVICE_SIDE)
@@ -101,41 +111,33 @@ def test_fuzz_bounded_and_seeded(flight):
     assert (again.published, again.beyond_3_sigma) == (first.published, first.beyond_3_sigma)
 
 
-def test_fusion_is_never_confidently_wrong_under_mutated_values(flight):
-    s = run_scenarios(flight, ["imu-mutated", "all-mutated"], seed=3, window=WINDOW)
+def test_fusion_is_never_confidently_wrong_under_mutated_values(scenarios):
+    s = [scenarios[name] for name in ("imu-mutated", "all-mutated")]
     assert all(score.beyond_share <= 0.01 for score in s), s
 
 
-def test_fusion_is_never_confidently_wrong_while_the_autopilot_is_silent(flight):
+def test_fusion_is_never_confidently_wrong_while_the_autopilot_is_silent(scenarios):
     """2-5 s with no IMU and no attitude in the first leg: the last attitude, held, used to
     steer the map's alignment as if fresh (7-13 % of the positions beyond 3 sigma)."""
-    s = run_scenarios(flight, ["link-loss-5s", "reboot"], seed=3, window=WINDOW)
+    s = [scenarios[name] for name in ("link-loss-5s", "reboot")]
     assert all(score.beyond_share <= 0.01 for score in s), s
 
 
-@pytest.fixture(scope="module")
-def state_and_starvation(flight):
-    """A false landed state and a starved CPU, scored against one clean run."""
-    return {s.scenario: s for s in run_scenarios(flight, ["landed-while-flying", "cpu-starved"],
-                                                 seed=3, window=WINDOW)}
-
-
-def test_an_autopilot_saying_landed_in_flight_does_not_hold_the_vehicle_still(
-        state_and_starvation):
+def test_an_autopilot_saying_landed_in_flight_does_not_hold_the_vehicle_still(scenarios):
     """HEARTBEAT STANDBY and EXTENDED_SYS_STATE ON_GROUND for 3 s in the first leg: zero
     velocity against a vehicle that flies fails its gate, so the poses are as without."""
-    s = state_and_starvation["landed-while-flying"]
+    s = scenarios["landed-while-flying"]
     print(f"\n{s}")
     assert s.crashes == 0 and s.published >= 0.8 * s.published_clean
     assert s.beyond_3_sigma <= s.beyond_3_sigma_clean + 0.005 * s.published
     assert s.recovery_s is not None and s.recovery_s <= 2.0
 
 
-def test_fusion_is_never_confidently_wrong_on_a_starved_cpu(state_and_starvation):
+def test_fusion_is_never_confidently_wrong_on_a_starved_cpu(scenarios):
     """The link read once a second and one frame in 30 tracked, 1 s late, for 3 s: the filter
     carries the vehicle on the IMU with its covariance growing; no stamp read late is taken
     for a reboot."""
-    s = state_and_starvation["cpu-starved"]
+    s = scenarios["cpu-starved"]
     print(f"\n{s}")
     assert s.crashes == 0 and s.nan_estimates == 0 and s.stale == 0 and s.reboots_seen == 0
     assert s.beyond_share <= 0.01 and s.recovery_s is not None and s.recovery_s <= 2.0

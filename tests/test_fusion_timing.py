@@ -31,8 +31,15 @@ def with_messages(flight: fh.Flight, messages: list) -> fh.Flight:
     return fh.Flight(flight.truth, messages, flight.frames)
 
 
-def test_late_messages_are_fused_by_replaying_the_filter(flight: fh.Flight) -> None:
-    on_time, _ = final_state(flight, offset=fh.BOOT_OFFSET)
+@pytest.fixture(scope="module")
+def on_time(flight: fh.Flight) -> tuple:
+    """The flight with every message on time and the clock offset known: what the tests below
+    compare with (read, never fed more)."""
+    return final_state(flight, offset=fh.BOOT_OFFSET)
+
+
+def test_late_messages_are_fused_by_replaying_the_filter(flight: fh.Flight, on_time) -> None:
+    on_time, _ = on_time
     rng = np.random.default_rng(2)
     late = [(arrival + (0.3 if rng.random() < 0.2 else 0.0), msg)
             for arrival, msg in flight.messages]
@@ -46,8 +53,8 @@ def test_late_messages_are_fused_by_replaying_the_filter(flight: fh.Flight) -> N
     assert fh.score(flight, out).position_pct < 3.0
 
 
-def test_arrival_order_does_not_matter_within_a_frame(flight: fh.Flight) -> None:
-    in_order, _ = final_state(flight, offset=fh.BOOT_OFFSET)
+def test_arrival_order_does_not_matter_within_a_frame(flight: fh.Flight, on_time) -> None:
+    in_order, _ = on_time
     swapped = list(flight.messages)  # stamped ones: an unstamped one's arrival is its time
     for k in range(0, len(swapped) - 1, 2):
         if all(remote_time(m) is not None for _, m in swapped[k:k + 2]):
@@ -67,9 +74,9 @@ def test_messages_older_than_the_history_are_dropped_and_counted(flight: fh.Flig
     assert fh.score(flight, out).position_pct < 3.0
 
 
-def test_timesync_offset_and_arrival_estimate_agree(flight: fh.Flight) -> None:
+def test_timesync_offset_and_arrival_estimate_agree(flight: fh.Flight, on_time) -> None:
     _, estimated = final_state(flight)
-    _, synced = final_state(flight, offset=fh.BOOT_OFFSET)
+    _, synced = on_time
     a, b = fh.score(flight, estimated), fh.score(flight, synced)
     assert a.position_pct < 3.0 and b.position_pct < 3.0
     assert abs(a.position_rmse_m - b.position_rmse_m) < 0.1

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import pytest
 
-from daemon import streams
 from daemon.config import Config, replace
 from sdvl.cli import main
 from sim.autopilot import SimAutopilot, SimOptions, configured_options
@@ -20,11 +19,7 @@ from sim.synth.flight import synthetic_sequence
 FLIGHT_FRAMES = 60  # 2 s of flight after the 5 s pre-flight on the ground
 
 
-@pytest.fixture(autouse=True)
-def short_settle(monkeypatch):
-    """The simulated autopilot answers within milliseconds: check-autopilot need not wait for
-    streams as long as a real one's."""
-    monkeypatch.setattr(streams, "SETTLE_S", 1.5)
+pytestmark = pytest.mark.usefixtures("quick_autopilot_probe")
 
 
 def applied(options: SimOptions, capsys) -> SimOptions:

@@ -64,6 +64,9 @@ class AttitudeTrack:
         self.samples: list[Attitude] = []
         self.refused = 0
         self._change: list[Attitude] = []  # refused in a row, each agreeing with the one before
+        # the last pair interpolated between and its relative rotation: the filter asks for
+        # several times between the same two samples (4 in 5 of the asks in a survey)
+        self._between: tuple[Attitude, Attitude, np.ndarray] | None = None
         self.health = StreamHealth("ATTITUDE", "doubted", "refused samples are not used; check "
                                    "the autopilot's AHRS and the link", report)
 
@@ -126,8 +129,7 @@ class AttitudeTrack:
         if before is not None and after is not None and after.t - before.t <= 2 * self.timeout_s:
             gap = after.t - before.t
             alpha = (t - before.t) / gap if gap > 0 else 0.0
-            delta = matrix_to_rotvec(before.R_n_b.T @ after.R_n_b)
-            R = before.R_n_b @ rotvec_to_matrix(alpha * delta)
+            R = before.R_n_b @ rotvec_to_matrix(alpha * self._turn_between(before, after))
             rates = (1 - alpha) * before.rates + alpha * after.rates
             return Attitude(t, R, rates, unseen_turn_var(0.0, gap))
         near = min((s for s in (before, after) if s is not None),
@@ -135,6 +137,14 @@ class AttitudeTrack:
         if near is None or abs(near.t - t) > self.timeout_s:
             return None
         return Attitude(t, turned(near, t - near.t), near.rates, unseen_turn_var(t - near.t))
+
+    def _turn_between(self, before: Attitude, after: Attitude) -> np.ndarray:
+        """The rotation vector from `before` to `after` (body axes), kept for the next ask."""
+        kept = self._between
+        if kept is None or kept[0] is not before or kept[1] is not after:
+            kept = self._between = (before, after,
+                                    matrix_to_rotvec(before.R_n_b.T @ after.R_n_b))
+        return kept[2]
 
     @property
     def latest(self) -> Attitude | None:

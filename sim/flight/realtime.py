@@ -43,7 +43,7 @@ from sim.flight.loop import flight_config
 from sim.flight.mission import Mission
 from sim.flight.runner import step_printer
 from sim.flight.world import FlightWorld
-from sim.replay.autopilot_process import START_METHOD, VisionMessage
+from sim.replay.autopilot_process import VisionMessage, start_context
 from sim.replay.recording import Recorder
 
 WARMUP_FRAMES = 30  # enough for the map to start, so the mapping kernels are compiled too
@@ -162,7 +162,7 @@ def fly_realtime(mission: Mission, config: Config, seed: int, size: tuple[int, i
     make_tracker = tracker_factory(config, world.camera)
     warm_up(world, make_tracker)
     timing, truth = Timing(), TruthShare()
-    ctx = multiprocessing.get_context(START_METHOD)
+    ctx = start_context()
     conn, child = ctx.Pipe()
     process = ctx.Process(target=_autopilot_process, name="sim-autopilot",
                           args=(child, mission, seed, size, without, truth.array, timing,

@@ -174,6 +174,15 @@ def _serve(conn: multiprocessing.connection.Connection, options: SimOptions,
             sim.record, pilot.attempts if pilot else []))
 
 
+def start_context() -> multiprocessing.context.BaseContext:
+    """The START_METHOD context whose fork server imports this module (numpy, scipy, pymavlink,
+    the simulated autopilot) once, so the processes it starts do not each import them again
+    (0.7 s CPU a start)."""
+    ctx = multiprocessing.get_context(START_METHOD)
+    ctx.set_forkserver_preload(["__main__", __name__])
+    return ctx
+
+
 class AutopilotProcess:
     """Start it, connect the service to `url`, call `finish()` for what it received."""
 
@@ -181,7 +190,7 @@ class AutopilotProcess:
                  trajectory: Trajectory | None = None, imu: ImuSamples | None = None,
                  sensors: SensorSamples | None = None, arm: bool = False,
                  imu_bias: tuple[np.ndarray, np.ndarray] | None = None):
-        ctx = multiprocessing.get_context(START_METHOD)
+        ctx = start_context()
         self.clock = ctx.Array("d", [math.nan, math.nan])
         self._conn, child = ctx.Pipe()
         self._process = ctx.Process(

@@ -54,6 +54,8 @@ def _render_pool(workers: int) -> multiprocessing.pool.Pool:
 
 
 def _render(i: int) -> int:
+    if _RENDER["stop"].is_set():  # a frame failed: the ones left end at once
+        return i
     sequence, folder = _RENDER["sequence"], _RENDER["folder"]
     cv2.imwrite(str(folder / f"{i:06d}.png"), sequence.image_loader(i))
     return i
@@ -87,7 +89,8 @@ def _rendered_into(folder: Path, sequence: Sequence, frames: int,
                    on_frame: Callable[[int], None], alongside: Callable[[], T]) -> T:
     """Render the first `frames` frames into `folder` on all cores; what `alongside()` returned
     meanwhile."""
-    _RENDER.update(sequence=sequence, folder=folder)
+    stop = multiprocessing.get_context("fork").Event()
+    _RENDER.update(sequence=sequence, folder=folder, stop=stop)
     workers = max(1, min(os.cpu_count() or 1, 4))
     result: list = []
     try:
@@ -96,9 +99,19 @@ def _rendered_into(folder: Path, sequence: Sequence, frames: int,
             thread = threading.Thread(target=lambda: result.append(alongside()),
                                       name="alongside-rendering")
             thread.start()
-            for done, _ in enumerate(pool.imap_unordered(_render, range(frames), chunksize=4)):
-                on_frame(done + 1)
-            pool.close()  # the workers end on their own; the exit's SIGTERM only for errors
+            try:
+                for done, _ in enumerate(pool.imap_unordered(_render, range(frames),
+                                                             chunksize=4)):
+                    on_frame(done + 1)
+            except Exception:
+                # the workers end on their sentinel, not the exit's SIGTERM: one killed while
+                # it sent a result keeps the result queue's lock, and Pool.terminate() then
+                # waits for it forever (1 run in 25 of a failing render hung)
+                stop.set()
+                pool.close()
+                pool.join()
+                raise
+            pool.close()  # the workers end on their own; the exit's SIGTERM only on an interrupt
             pool.join()
             thread.join()
     finally:
