@@ -223,8 +223,8 @@ def run(args: argparse.Namespace) -> int:
     """Entry point of `sdvl run`; once the service ran, the process ends here (exit_now)."""
     notifier = Notifier()
     signals = EarlySignals()
-    signals.install()
     try:
+        signals.install()  # inside: a SIGTERM between its first and last handler is a stop too
         code = _start(args, signals, notifier)
     except Stopped:  # SIGTERM/SIGINT while starting: a clean stop
         return 0
