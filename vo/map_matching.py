@@ -71,27 +71,46 @@ class MapMatcher:
         if len(ids) < MIN_POSE_MATCHES:
             return m
         t0 = time.perf_counter()
+        self._refine(frame, m, timings)
+        timings["pose"] = ms_since(t0)
+        return m
+
+    def _refine(self, frame: Frame, m: Matches, timings: dict[str, float]) -> None:
+        """m's pose from its matches (with outlier rejection: RANSAC, then the rescue) and its
+        inliers. The matches' normalised coordinates and depth whitening (both at frame's
+        prior pose) are computed once for all the fits, the fit to all matches at most once."""
+        cfg, ids, levels = self.config, m.ids, m.levels
+        obs, whiten = self._normalised(m.uv), self._whitening(frame, ids)
+
+        fit_all: list = []  # the fit to all matches, once asked for
+
+        def fit(use: np.ndarray):
+            if not use.all():
+                return self._fit(frame, ids[use], obs[use], levels[use], whiten[use])
+            if not fit_all:
+                fit_all.append(self._fit(frame, ids, obs, levels, whiten))
+            return fit_all[0]
+
         use = np.ones(len(ids), dtype=bool)
         rejecting = cfg.outlier_rejection and len(ids) > outlier_rejection.SUBSET
         if rejecting:
-            use, m.n_hypotheses = self._reject_outliers(frame, ids, uv, levels)
+            t0 = time.perf_counter()
+            T_all = fit(use)[0]
+            use, m.n_hypotheses = self._reject_outliers(frame, ids, obs, levels, T_all)
             timings["ransac"] = ms_since(t0)
             if use.sum() < MIN_POSE_MATCHES:
                 # no consensus within image pixels (blurred matches found on coarse levels):
                 # the robust fit to all matches decides, as without rejection
                 use[:], rejecting = True, False
-        if use.sum() >= MIN_POSE_MATCHES:
-            T, H, sigma, err = self.optimize(frame, ids[use], uv[use], levels[use])
-            if rejecting:
-                # rescue: outliers within a wider threshold of the inlier pose join them
-                frame.T_c_w, prior = T, frame.T_c_w
-                use = self._errors(frame, ids, uv) * self.focal < cfg.ransac_rescue_px
-                frame.T_c_w = prior
-                T, H, sigma, err = self.optimize(frame, ids[use], uv[use], levels[use])
-            m.T, m.H, m.sigma = T, H, sigma
-            m.inlier[use] = err * self.focal < cfg.reprojection_inlier_px
-        timings["pose"] = ms_since(t0)
-        return m
+        if use.sum() < MIN_POSE_MATCHES:
+            return
+        T, H, sigma, err = fit(use)
+        if rejecting:
+            # rescue: outliers within a wider threshold of the inlier pose join them
+            use = self._errors(ids, obs, T) * self.focal < cfg.ransac_rescue_px
+            T, H, sigma, err = fit(use)
+        m.T, m.H, m.sigma = T, H, sigma
+        m.inlier[use] = err * self.focal < cfg.reprojection_inlier_px
 
     def quality(self, m: Matches) -> Quality:
         """Quality of 6.10; a match counts once it survives the pose refinement."""
@@ -123,11 +142,18 @@ class MapMatcher:
 
     def optimize(self, frame: Frame, ids: np.ndarray, uv: np.ndarray, levels: np.ndarray):
         """Pose refinement from matches; returns (T_c_w, H, sigma, per-match error)."""
-        obs = self._normalised(uv)
+        return self._fit(frame, ids, self._normalised(uv), levels, self._whitening(frame, ids))
+
+    def _whitening(self, frame: Frame, ids: np.ndarray) -> np.ndarray:
+        """The matches' error whitening along their depth intervals at frame's pose."""
         pts = self.map.points
-        whiten = depth_whitening(frame.T_c_w, self.map.kf_T_c_w, pts.host[ids], pts.f[ids],
-                                 pts.rho[ids], pts.sigma[ids], 1.0 / self.focal)
-        return optimize_pose(np.ascontiguousarray(pts.pos_w[ids]), obs,
+        return depth_whitening(frame.T_c_w, self.map.kf_T_c_w, pts.host[ids], pts.f[ids],
+                               pts.rho[ids], pts.sigma[ids], 1.0 / self.focal)
+
+    def _fit(self, frame: Frame, ids: np.ndarray, obs: np.ndarray, levels: np.ndarray,
+             whiten: np.ndarray):
+        """optimize from normalised coordinates obs and whitening already computed."""
+        return optimize_pose(np.ascontiguousarray(self.map.points.pos_w[ids]), obs,
                              np.ascontiguousarray(levels, dtype=np.int64), whiten, frame.T_c_w,
                              self.config.pose_iterations, 0.5 / self.focal, frame.R_prior,
                              frame.prior_info)
@@ -147,25 +173,24 @@ class MapMatcher:
         search = pts.status[idx] == CANDIDATE
         return self.reprojector.run(frame, self.map, idx, search)
 
-    def _errors(self, frame: Frame, ids: np.ndarray, uv: np.ndarray) -> np.ndarray:
-        """Reprojection errors (normalised plane) of matches at frame's pose."""
+    def _errors(self, ids: np.ndarray, obs: np.ndarray, T_c_w: np.ndarray) -> np.ndarray:
+        """Reprojection errors (normalised plane) of matches (normalised obs) at pose T_c_w."""
         pos = np.ascontiguousarray(self.map.points.pos_w[ids])
-        return np.sqrt(outlier_rejection.squared_errors(pos, self._normalised(uv), frame.T_c_w))
+        return np.sqrt(outlier_rejection.squared_errors(pos, obs, T_c_w))
 
-    def _reject_outliers(self, frame: Frame, ids: np.ndarray, uv: np.ndarray,
-                         levels: np.ndarray) -> tuple[np.ndarray, int]:
+    def _reject_outliers(self, frame: Frame, ids: np.ndarray, obs: np.ndarray,
+                         levels: np.ndarray, T_all: np.ndarray) -> tuple[np.ndarray, int]:
         """RANSAC inliers (6.8) among the matches, hypotheses from frame's prior pose; and
-        how many hypotheses were fitted. The robust pose from all matches is the first
+        how many hypotheses were fitted. T_all, the robust pose from all matches, is the first
         hypothesis: 5-point fits to matches a few pixels off agree with few others (kitti00
         with its preset 1.06 -> 0.62 m with it)."""
         cfg = self.config
-        T_all = self.optimize(frame, ids, uv, levels)[0]
         subsets = outlier_rejection.random_subsets(len(ids), cfg.ransac_max_hypotheses,
                                                    cfg.seed + frame.id)
         inlier, tried = outlier_rejection.ransac(
-            np.ascontiguousarray(self.map.points.pos_w[ids]), self._normalised(uv),
-            1.0 / 2.0 ** levels, frame.T_c_w, subsets, cfg.ransac_threshold_px / self.focal,
-            cfg.ransac_probability, T_all)
+            np.ascontiguousarray(self.map.points.pos_w[ids]), obs, 1.0 / 2.0 ** levels,
+            frame.T_c_w, subsets, cfg.ransac_threshold_px / self.focal, cfg.ransac_probability,
+            T_all)
         return inlier, int(tried)
 
     def _forget_rejected(self, ids: np.ndarray, inlier: np.ndarray) -> None:
