@@ -122,11 +122,16 @@ class MapFusion:
                 self._scene_height(t, frame, R_n_b)
         elif f.rejections["vo"] >= self.cfg.reset_after_rejections and att is not None:
             f.realigns += 1
-            f.doubt_motion()
+            if f.scale_source is ScaleSource.PRIOR:  # a map of unknown scale disagrees with
+                f.vo_disagreement = []  # any motion: no evidence against the IMU's
+            else:
+                f.doubt_motion()
             self.gate.restart()
-            # the same map: its scale holds, only where it puts the camera now is re-anchored
+            climb = f.climb  # the same map: its heights against the barometer's still hold,
+            # its scale holds, only where it puts the camera now is re-anchored
             f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, f.x[LOG_SCALE],
                             float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE])), metric=metric)
+            f.climb = climb
             f.rejections["vo"] = 0
         if f.scale_source is ScaleSource.PRIOR:
             f.forget_scale()
@@ -165,7 +170,7 @@ class MapFusion:
         if (self.readings.baro is None or abs(t - self.readings.baro[0]) > RANGE_FRESH_S
                 or f.converged):
             return  # once converged the fit is not used: pairing on would grow without bound
-        f.climb.add(float((f.R_nom @ (frame.p_w - f.p_w0))[2]), *self.readings.baro)
+        f.climb.add(float((f.R_nom @ frame.p_w)[2]), *self.readings.baro)  # map's own origin
         std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
         if att is None or (std <= cfg.coarse_scale_std and self.imu_fresh(t)):
             return
