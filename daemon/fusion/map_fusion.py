@@ -121,15 +121,27 @@ class MapFusion:
             if not metric:
                 self._scene_height(t, frame, R_n_b)
         elif f.rejections["vo"] >= self.cfg.reset_after_rejections and att is not None:
-            f.realigns += 1
-            f.doubt_motion()
-            self.gate.restart()
-            # the same map: its scale holds, only where it puts the camera now is re-anchored
-            f.start_segment(frame.p_w, frame.R_w_b, att.R_n_b, f.x[LOG_SCALE],
-                            float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE])), metric=metric)
-            f.rejections["vo"] = 0
+            self._realign(frame, att.R_n_b, metric)
         if f.scale_source is ScaleSource.PRIOR:
             f.forget_scale()
+
+    def _realign(self, frame: FrameInput, R_n_b: np.ndarray, metric: bool) -> None:
+        """The tracker's poses were rejected reset_after_rejections times in a row: the same
+        map is re-anchored where it puts the camera now, its scale and its climb pairs kept.
+        The filter doubts its own motion first (doubt_motion), unless the map's scale is the
+        wide prior: such a map disagrees with any motion, no evidence against the IMU's."""
+        f = self.filter
+        f.realigns += 1
+        if f.scale_source is ScaleSource.PRIOR:
+            f.vo_disagreement = []
+        else:
+            f.doubt_motion()
+        self.gate.restart()
+        climb = f.climb
+        f.start_segment(frame.p_w, frame.R_w_b, R_n_b, f.x[LOG_SCALE],
+                        float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE])), metric=metric)
+        f.climb = climb
+        f.rejections["vo"] = 0
 
     def _late_range_prior(self, t: float, frame: FrameInput, att: object) -> None:
         """A map started before the rangefinder's first reading still has the wide prior:
@@ -165,7 +177,7 @@ class MapFusion:
         if (self.readings.baro is None or abs(t - self.readings.baro[0]) > RANGE_FRESH_S
                 or f.converged):
             return  # once converged the fit is not used: pairing on would grow without bound
-        f.climb.add(float((f.R_nom @ (frame.p_w - f.p_w0))[2]), *self.readings.baro)
+        f.climb.add(float((f.R_nom @ frame.p_w)[2]), *self.readings.baro)  # map's own origin
         std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
         if att is None or (std <= cfg.coarse_scale_std and self.imu_fresh(t)):
             return
