@@ -78,25 +78,21 @@ class MapMatcher:
     def _refine(self, frame: Frame, m: Matches, timings: dict[str, float]) -> None:
         """m's pose from its matches (with outlier rejection: RANSAC, then the rescue) and its
         inliers. The matches' normalised coordinates and depth whitening (both at frame's
-        prior pose) are computed once for all the fits, the fit to all matches at most once."""
+        prior pose) are computed once for all the fits, and so is the fit to all matches (the
+        pose without rejection, RANSAC's first hypothesis, its fallback)."""
         cfg, ids, levels = self.config, m.ids, m.levels
         obs, whiten = self._normalised(m.uv), self._whitening(frame, ids)
-
-        fit_all: list = []  # the fit to all matches, once asked for
+        whole = self._fit(frame, ids, obs, levels, whiten)  # needed on every path
 
         def fit(use: np.ndarray):
-            if not use.all():
-                return self._fit(frame, ids[use], obs[use], levels[use], whiten[use])
-            if not fit_all:
-                fit_all.append(self._fit(frame, ids, obs, levels, whiten))
-            return fit_all[0]
+            return whole if use.all() else self._fit(frame, ids[use], obs[use], levels[use],
+                                                     whiten[use])
 
         use = np.ones(len(ids), dtype=bool)
         rejecting = cfg.outlier_rejection and len(ids) > outlier_rejection.SUBSET
         if rejecting:
             t0 = time.perf_counter()
-            T_all = fit(use)[0]
-            use, m.n_hypotheses = self._reject_outliers(frame, ids, obs, levels, T_all)
+            use, m.n_hypotheses = self._reject_outliers(frame, ids, obs, levels, whole[0])
             timings["ransac"] = ms_since(t0)
             if use.sum() < MIN_POSE_MATCHES:
                 # no consensus within image pixels (blurred matches found on coarse levels):

@@ -127,20 +127,14 @@ class MapFusion:
 
     def _realign(self, frame: FrameInput, R_n_b: np.ndarray, metric: bool) -> None:
         """The tracker's poses were rejected reset_after_rejections times in a row: the same
-        map is re-anchored where it puts the camera now, its scale and its climb pairs kept.
-        The filter doubts its own motion first (doubt_motion), unless the map's scale is the
-        wide prior: such a map disagrees with any motion, no evidence against the IMU's."""
+        map is re-anchored where it puts the camera now, its scale and its climb pairs kept,
+        after the filter doubted its own motion (doubt_motion)."""
         f = self.filter
         f.realigns += 1
-        if f.scale_source is ScaleSource.PRIOR:
-            f.vo_disagreement = []
-        else:
-            f.doubt_motion()
+        f.doubt_motion()
         self.gate.restart()
-        climb = f.climb
         f.start_segment(frame.p_w, frame.R_w_b, R_n_b, f.x[LOG_SCALE],
-                        float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE])), metric=metric)
-        f.climb = climb
+                        float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE])), metric=metric, same_map=True)
         f.rejections["vo"] = 0
 
     def _late_range_prior(self, t: float, frame: FrameInput, att: object) -> None:

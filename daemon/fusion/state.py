@@ -161,15 +161,18 @@ class NavFilter:
 
     def start_segment(self, p_w: np.ndarray, R_w_b: np.ndarray, R_n_b: np.ndarray,
                       log_scale: float, scale_std: float | None = None,
-                      metric: bool = False, source: ScaleSource | None = None) -> None:
+                      metric: bool = False, source: ScaleSource | None = None,
+                      same_map: bool = False) -> None:
         """A new map: clone the camera position as the anchor, fresh alignment, and the scale
         with `scale_std` (default: the prior's) from `source` (default: GIVEN with a std under
         the prior's, else PRIOR); a `metric` map's scale is 1, exactly and for good
-        (ScaleSource.METRIC)."""
+        (ScaleSource.METRIC). `same_map`: the map re-anchored, its climb pairs kept (they are
+        in its own coordinates)."""
         if metric:
             log_scale, scale_std = 0.0, 0.0
         self.converged = False
-        self.climb = ClimbScale()
+        if not same_map:
+            self.climb = ClimbScale()
         self.motion = self._accel_scale()
         x, P = self.x, self.P
         self._hang_map(p_w, R_n_b)
@@ -218,8 +221,10 @@ class NavFilter:
         checks), and nothing tells which. The position takes the last disagreement as
         covariance and the velocity its rate (a least-squares slope), so whichever was wrong,
         what is sent covers it, and the next tracker updates can correct the velocity instead
-        of failing their gate against a filter sure of a wrong one."""
-        if not self.vo_disagreement:
+        of failing their gate against a filter sure of a wrong one. A map whose scale is the
+        wide prior disagrees with any motion: no evidence against the filter's."""
+        if not self.vo_disagreement or self.scale_source is ScaleSource.PRIOR:
+            self.vo_disagreement = []
             return
         times = np.array([t for t, _ in self.vo_disagreement])
         apart = np.array([d for _, d in self.vo_disagreement])
