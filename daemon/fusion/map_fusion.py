@@ -60,7 +60,7 @@ def frame_input(result: object, R_c_b: np.ndarray, segment: int,
     return FrameInput(T[:3, 3].copy(), T[:3, :3] @ R_c_b, stretch @ cov @ stretch,
                       result.quality, segment, getattr(result, "scene_w", None),
                       bool(result.new_segment), bool(getattr(result, "metric", False)),
-                      getattr(result, "n_inliers", None))
+                      getattr(result, "n_inliers", 0) or None)  # 0: not told (a pose has some)
 
 
 @dataclass
