@@ -141,12 +141,6 @@ class FusionConfig:
     gate_chi2_3dof: float = 16.3
     gate_chi2_6dof: float = 22.5  # tracker position and attitude together
     reset_after_rejections: int = 10  # in a row: re-reference range/baro, re-align the map
-    # a rejected tracker pose counts towards re-aligning its map only when this many map
-    # points support it (the tracker rates by ratio: 6 of 12 is 'good'); at touch-down the
-    # camera 0.15 m over its map's ground tracked 6-19 points, three re-alignments in 1.3 s
-    # made the filter follow them and ArduCopter's EKF failsafed (RESULTS.md:
-    # fly-default-without-baro)
-    realign_min_inliers: int = 20
     # timing
     history_s: float = 1.0  # late messages up to this old are fused by replaying the filter
     clock_offset_window_s: float = 10.0

@@ -77,7 +77,6 @@ LIMITS = {
     "gate_chi2_3dof": CHI2,
     "gate_chi2_6dof": CHI2,
     "reset_after_rejections": interval(1, 1_000_000),
-    "realign_min_inliers": interval(0, 1_000_000),
     # the filter keeps a snapshot per frame for this long (late messages replay from one)
     "history_s": interval(above=0, high=10, why="snapshots kept in memory"),
     "clock_offset_window_s": interval(above=0, high=600, why="delays kept in memory"),

@@ -39,7 +39,6 @@ class FrameInput:
     scene_w: np.ndarray | None = None  # matched map points, tracker world (scene.py)
     fresh: bool = False  # the first frame of its map (whose median depth is map_depth_units)
     metric: bool = False  # its map is in metres (started from a depth map): no scale to find
-    inliers: int | None = None  # map points that support the pose (None: not told)
 
 
 def frame_input(result: object, R_c_b: np.ndarray, segment: int,
@@ -59,8 +58,7 @@ def frame_input(result: object, R_c_b: np.ndarray, segment: int,
     stretch = np.diag([np.sqrt(position_factor)] * 3 + [1.0] * 3)
     return FrameInput(T[:3, 3].copy(), T[:3, :3] @ R_c_b, stretch @ cov @ stretch,
                       result.quality, segment, getattr(result, "scene_w", None),
-                      bool(result.new_segment), bool(getattr(result, "metric", False)),
-                      getattr(result, "n_inliers", 0) or None)  # 0: not told (a pose has some)
+                      bool(result.new_segment), bool(getattr(result, "metric", False)))
 
 
 @dataclass
@@ -117,7 +115,7 @@ class MapFusion:
                     else (att.R_n_b, frame.R_w_b,
                           attitude_noise(self.cfg, frame.quality, att.gap_var)))
         if m.update_vo(f, frame.p_w, frame.cov, R_n_b, factor, imu, attitude,
-                       coarse, self._evidence(frame)):
+                       coarse):
             if np.linalg.norm(f.x[POS] - f.x[ANCHOR]) > self.cfg.reanchor_distance_m:
                 f.reanchor(frame.p_w, R_n_b)
             if not metric:
@@ -126,11 +124,6 @@ class MapFusion:
             self._realign(frame, att.R_n_b, metric)
         if f.scale_source is ScaleSource.PRIOR:
             f.forget_scale()
-
-    def _evidence(self, frame: FrameInput) -> bool:
-        """Whether the frame's pose, if rejected, counts against the filter's motion (towards
-        a re-alignment): enough map points support it."""
-        return frame.inliers is None or frame.inliers >= self.cfg.realign_min_inliers
 
     def _realign(self, frame: FrameInput, R_n_b: np.ndarray, metric: bool) -> None:
         """The tracker's poses were rejected reset_after_rejections times in a row: the same

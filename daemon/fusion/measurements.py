@@ -116,7 +116,7 @@ def vo_position_floor(f: NavFilter) -> float:
 def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarray,
               inflation: float, scale_from_motion: bool = True,
               attitude: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-              horizontal_inflation: float = 1.0, evidence: bool = True) -> bool:
+              horizontal_inflation: float = 1.0) -> bool:
     """The tracker's camera position (its world frame and units); `cov_w` is its 6x6 pose
     covariance (position, rotation; tracker world), times `inflation`.
 
@@ -128,8 +128,7 @@ def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarra
     Without an IMU, `scale_from_motion` is False: horizontal motion says nothing about the scale
     then (only a constant-velocity guess would), so the horizontal rows do not update the scale
     (a Schmidt "consider" update: the scale's uncertainty still counts in their innovation).
-    `horizontal_inflation` further inflates the north and east rows (variance factor). A
-    rejected update counts in the run that re-aligns the map only as `evidence`."""
+    `horizontal_inflation` further inflates the north and east rows (variance factor)."""
     rotate = np.kron(np.eye(2), f.R_nom)
     cov_n = rotate @ cov_w @ rotate.T
     coupling = tilt_coupling(cov_n)
@@ -158,8 +157,6 @@ def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarra
     disagreement = (z[:3] - h[:3]) * f.scale  # metres, N axes
     ok = gated_update(f, z, h, H, R, gate, frozen)
     fold_alignment(f)
-    if not ok and not evidence:
-        return False
     f.rejections["vo"] = 0 if ok else f.rejections["vo"] + 1
     run = [] if ok else [*f.vo_disagreement, (float(f.t), disagreement)]
     f.vo_disagreement = run[-f.cfg.reset_after_rejections:]  # the run a re-alignment looks at
