@@ -181,12 +181,11 @@ class MapMatcher:
         hypothesis: 5-point fits to matches a few pixels off agree with few others (kitti00
         with its preset 1.06 -> 0.62 m with it)."""
         cfg = self.config
-        subsets = outlier_rejection.random_subsets(len(ids), cfg.ransac_max_hypotheses,
-                                                   cfg.seed + frame.id)
         inlier, tried = outlier_rejection.ransac(
             np.ascontiguousarray(self.map.points.pos_w[ids]), obs, 1.0 / 2.0 ** levels,
-            frame.T_c_w, subsets, cfg.ransac_threshold_px / self.focal, cfg.ransac_probability,
-            T_all)
+            frame.T_c_w, outlier_rejection.SubsetDraws(len(ids), cfg.seed + frame.id),
+            cfg.ransac_threshold_px / self.focal, cfg.ransac_probability,
+            cfg.ransac_max_hypotheses, T_all)
         return inlier, int(tried)
 
     def _forget_rejected(self, ids: np.ndarray, inlier: np.ndarray) -> None:
