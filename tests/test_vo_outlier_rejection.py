@@ -48,20 +48,10 @@ def _reference_ransac(pos_w, obs, scale, T_prior, subsets, threshold, p, T_first
     return best, tried
 
 
-def _draws(rows: np.ndarray):
-    """RANSAC's draw over fixed rows: the next k of them per call."""
-    taken = [0]
-
-    def draw(k: int) -> np.ndarray:
-        taken[0] += k
-        return rows[taken[0] - k:taken[0]]
-    return draw
-
-
-def test_subsets_drawn_in_parts_are_the_subsets_drawn_at_once():
-    whole = orj.SubsetDraws(40, 7)(30)
-    parts = orj.SubsetDraws(40, 7)
-    assert np.array_equal(np.vstack([parts(3), parts(1), parts(26)]), whole)
+def test_the_first_rows_of_subsets_do_not_depend_on_how_many_are_drawn():
+    """RANSAC draws as many as it needs: the rows it tries are those of the whole cap."""
+    whole = orj.random_subsets(40, 30, 7)
+    assert np.array_equal(orj.random_subsets(40, 4, 7), whole[:4])
 
 
 def test_ransac_matches_the_reference_and_finds_the_outliers():
@@ -74,16 +64,17 @@ def test_ransac_matches_the_reference_and_finds_the_outliers():
     outliers = rng.choice(n, 30, replace=False)
     obs[outliers] += rng.uniform(0.02, 0.05, (30, 2)) * rng.choice([-1, 1], (30, 2))
     scale = 1.0 / 2.0 ** rng.integers(0, 3, n)
-    subsets = orj.SubsetDraws(n, 7)(100)
+    subsets = orj.random_subsets(n, 100, 7)
     truth = np.ones(n, bool)
     truth[outliers] = False
     # random subsets; then subsets of outliers only (as when blur leaves no 5 matches that
     # agree), without and with a good first hypothesis (the robust fit to all matches)
-    hopeless = outliers[orj.SubsetDraws(30, 3)(100)]
+    hopeless = outliers[orj.random_subsets(30, 100, 3)]
     cases = [(np.eye(4), subsets, True), (np.eye(4), hopeless, False), (T_true, hopeless, True)]
     for T_first, rows, finds_them in cases:
         args = (pos_w, obs, scale, np.eye(4), rows, 2.0 / 500, 0.99, T_first)
-        inlier, tried = orj.ransac(*args[:4], _draws(rows), *args[5:7], len(rows), T_first)
+        inlier, tried = orj.ransac(*args[:4], lambda k, r=rows: r[:k],
+                                   *args[5:7], len(rows), T_first)
         ref_inlier, ref_tried = _reference_ransac(*args)
         assert np.array_equal(inlier, ref_inlier) and tried == ref_tried
         assert np.array_equal(inlier, truth) == finds_them

@@ -11,7 +11,7 @@ from scipy.linalg import expm
 from vo.map_matching import _count_found_missed
 from vo.matcher import inverse2
 from vo.normal_equations import solve_spd
-from vo.outlier_rejection import SUBSET, SubsetDraws
+from vo.outlier_rejection import SUBSET, random_subsets
 from vo.se3 import adjoint, compose, exp_se3, inv_se3, orthonormalized, skew
 
 
@@ -94,7 +94,7 @@ def test_found_missed_counts_against_set_difference():
 
 
 @pytest.mark.parametrize("n", [6, 50, 300])
-def test_subset_draws_are_the_smallest_draws(n):
-    subsets = SubsetDraws(n, 7)(40)
+def test_random_subsets_are_the_smallest_draws(n):
+    subsets = random_subsets(n, 40, 7)
     draws = np.random.default_rng(7).random((40, n))
     assert np.array_equal(subsets, np.argsort(draws, axis=1)[:, :SUBSET])

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from functools import partial
 
 import numba
 import numpy as np
@@ -181,9 +182,10 @@ class MapMatcher:
         hypothesis: 5-point fits to matches a few pixels off agree with few others (kitti00
         with its preset 1.06 -> 0.62 m with it)."""
         cfg = self.config
+        draw = partial(outlier_rejection.random_subsets, len(ids), seed=cfg.seed + frame.id)
         inlier, tried = outlier_rejection.ransac(
             np.ascontiguousarray(self.map.points.pos_w[ids]), obs, 1.0 / 2.0 ** levels,
-            frame.T_c_w, outlier_rejection.SubsetDraws(len(ids), cfg.seed + frame.id),
+            frame.T_c_w, draw,
             cfg.ransac_threshold_px / self.focal, cfg.ransac_probability,
             cfg.ransac_max_hypotheses, T_all)
         return inlier, int(tried)

@@ -80,49 +80,40 @@ def hypotheses_needed(n_inliers, n, p, cap):
 
 def ransac(pos_w, obs, scale, T_prior, draw, threshold, p, cap, T_first):
     """Inlier mask of the best hypothesis, T_first (a pose fitted to all matches) or one fitted
-    to a subset that `draw(k)` gives (k more rows of SUBSET match indices; at most `cap`
-    hypotheses, fewer once eq. 6.12 is satisfied, and only the rows needed are drawn), and the
-    number of subsets tried."""
+    to a row of `draw(k)` (k rows of SUBSET match indices), and the number of rows tried. As
+    many rows are drawn as eq. 6.12 asks after T_first (at most `cap`): better hypotheses only
+    lower that number, so they are all there is to try (vamr needs 8 at the median; drawing
+    all of the cap cost 0.2 ms a frame)."""
     thr2 = threshold * threshold
     best = squared_errors(pos_w, obs, T_first) < thr2
     needed = hypotheses_needed(best.sum(), pos_w.shape[0], p, cap)
-    tried = 0
-    while tried < needed:
-        best, tried, needed = _try_subsets(pos_w, obs, scale, T_prior, draw(needed - tried),
-                                           thr2, p, cap, best, tried, needed)
-    return best, tried
+    return _try_subsets(pos_w, obs, scale, T_prior, draw(needed), thr2, p, cap, best)
 
 
 @numba.njit(cache=True, nogil=True)
-def _try_subsets(pos_w, obs, scale, T_prior, subsets, thr2, p, cap, best, tried, needed):
-    """RANSAC's loop over the rows of `subsets` while hypotheses are still needed: the best
-    inlier mask so far, the hypotheses tried and needed (eq. 6.12) after them."""
+def _try_subsets(pos_w, obs, scale, T_prior, subsets, thr2, p, cap, best):
+    """RANSAC's loop over the rows of `subsets` while eq. 6.12 still asks for hypotheses,
+    from the inlier mask `best`: the best mask and the number of rows tried."""
     n = pos_w.shape[0]
     best_count = best.sum()
-    for row in range(subsets.shape[0]):
-        if tried >= needed:
-            break
-        T = fit_subset(pos_w, obs, scale, subsets[row], T_prior, HYPOTHESIS_ITERATIONS)
+    needed = subsets.shape[0]
+    tried = 0
+    while tried < needed:
+        T = fit_subset(pos_w, obs, scale, subsets[tried], T_prior, HYPOTHESIS_ITERATIONS)
         tried += 1
         inlier = squared_errors(pos_w, obs, T) < thr2
         count = inlier.sum()
         if count > best_count:
             best, best_count = inlier, count
-            needed = hypotheses_needed(count, n, p, cap)
-    return best, tried, needed
+            needed = min(needed, hypotheses_needed(count, n, p, cap))
+    return best, tried
 
 
-class SubsetDraws:
-    """Random subsets of SUBSET distinct match indices in 0..n-1 from a seeded generator, drawn
-    as RANSAC asks for them: each row the positions of the SUBSET smallest of n uniform draws
-    (a random subset). The rows do not depend on how they are asked for: k rows, then m, are
-    the k + m rows drawn at once (most frames need a few of the cap: drawing all cost 0.2 ms)."""
-
-    def __init__(self, n: int, seed: int):
-        self.n, self.rng = n, np.random.default_rng(seed)
-
-    def __call__(self, rows: int) -> np.ndarray:
-        return _smallest(self.rng.random((rows, self.n)), SUBSET)
+def random_subsets(n: int, count: int, seed: int) -> np.ndarray:
+    """`count` rows of SUBSET distinct match indices in 0..n-1, from a seeded generator: each
+    row the positions of the SUBSET smallest of n uniform draws (a random subset). The first k
+    rows do not depend on `count`."""
+    return _smallest(np.random.default_rng(seed).random((count, n)), SUBSET)
 
 
 @numba.njit(cache=True, nogil=True)
