@@ -38,6 +38,11 @@ class TrackerConfig:
 
     # feature alignment and pose refinement (6.7.2, 6.7.3)
     max_matches: int = 200
+    # while fewer than this matched with one point per grid cell, another round takes the next
+    # point of each cell: a downward camera's take-off climb crowds its map's points into a
+    # few cells (the climb's 10x zoom-out left 8 of 62 to try and lost the map, RESULTS.md:
+    # fly-default-without-rangefinder); 0: one per cell, as the thesis
+    crowded_min_matches: int = 50
     align2d_iterations: int = 10
     track_candidates: bool = True
     candidate_min_updates: int = 3

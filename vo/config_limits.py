@@ -24,6 +24,7 @@ LIMITS = {
     "align_min_level": LEVEL,
     "align_iterations": ITERATIONS,
     "max_matches": interval(6, 100_000),
+    "crowded_min_matches": interval(0, 100_000),
     "align2d_iterations": ITERATIONS,
     "candidate_min_updates": COUNT,
     "point_max_missed": SOME,

@@ -253,21 +253,25 @@ class Reprojector:
         cfg = self.config
         search = (cfg.track_corner_level, cfg.match_max_level, cfg.epipolar_margin_px,
                   cfg.zmssd_threshold, cfg.align2d_iterations)
-        done = np.zeros(self.n_cells, dtype=np.bool_)
         found: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         max_level, max_matches, fallback = self.options
-        lookahead, n_found = 1, 0
-        while True:
-            k, uv, level = match_in_cells(
-                self.camera.params, frame.T_c_w, cands, (map_.kf_pyr, map_.kf_T_c_w),
-                frame.pyr.layout, frame.pyr.flat, corners, search,
-                (max_level, max_matches - n_found, fallback), (done, tried, lookahead),
-                orb.tables)
-            found.append((k, uv, level))
-            n_found += len(k)
-            if not orb.fill():
+        n_found = 0
+        while True:  # a round: one point per cell; another while they are crowded
+            done = np.zeros(self.n_cells, dtype=np.bool_)
+            lookahead, before = 1, n_found
+            while True:
+                k, uv, level = match_in_cells(
+                    self.camera.params, frame.T_c_w, cands, (map_.kf_pyr, map_.kf_T_c_w),
+                    frame.pyr.layout, frame.pyr.flat, corners, search,
+                    (max_level, max_matches - n_found, fallback), (done, tried, lookahead),
+                    orb.tables)
+                found.append((k, uv, level))
+                n_found += len(k)
+                if not orb.fill():
+                    break
+                lookahead *= 2
+            if n_found == before or n_found >= cfg.crowded_min_matches or tried.all():
                 break
-            lookahead *= 2
         return tuple(np.concatenate([a[i] for a in found]) for i in range(3))
 
 
