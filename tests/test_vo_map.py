@@ -1,6 +1,7 @@
 """Map storage: slot recycling is delayed, removing a keyframe drops what it hosts, the store
 stays bounded under churn, a keyframe observes only live points; the points seen for the
-keyframe policy count grid cells; quality classification of 6.10."""
+keyframe policy count grid cells; tracking matches one point per cell, more while they are
+crowded; quality classification of 6.10."""
 
 from __future__ import annotations
 
@@ -104,19 +105,15 @@ def test_quality_as_in_thesis():
         False, False, False, False, False, True]
 
 
-def test_points_seen_for_keyframes_count_grid_cells():
-    """The keyframe policy's count of points seen (Matches.n_visible) is the number of grid
-    cells map points project into, not the points: points crowded into one cell (a camera
-    climbing along its axis) count once, as tracking matches one point per cell."""
-    cam = CameraModel(128, 96, 100.0, 100.0, 63.5, 47.5)
-    config = TrackerConfig(grid_cell=32)
+def _crowded_map(cam: CameraModel, spread: np.ndarray) -> tuple[Map, np.ndarray, Frame]:
+    """A keyframe with six converged points in one 32 px cell and `spread` in cells of their
+    own, and a current frame at the same pose and image (every match succeeds)."""
     m = Map(128, 96, 3, 5)
     image = np.random.default_rng(0).integers(0, 255, (96, 128), dtype=np.uint8)
     kf = Frame(0, 0.0, image, cam, 3)
     kf.T_c_w = np.eye(4)
     slot = m.add_keyframe(kf)
     crowded = np.array([[40.0 + k, 40.0 + k] for k in range(6)])  # six points in one cell
-    spread = np.array([[20.0, 20.0], [50.0, 70.0], [100.0, 20.0], [100.0, 70.0]])
     px = np.vstack([crowded, spread])
     ids = m.points.add(slot, px[:, 0], px[:, 1], np.zeros(len(px), np.int64), cam.unproject(px),
                        np.ones(len(px)), np.full(len(px), 0.01), np.full(len(px), 2.0), 10.0,
@@ -124,12 +121,42 @@ def test_points_seen_for_keyframes_count_grid_cells():
     m.points.status[ids] = CONVERGED
     cur = Frame(1, 0.1, image, cam, 3)
     cur.T_c_w = np.eye(4)
+    return m, ids, cur
+
+
+SPREAD = np.array([[20.0, 20.0], [50.0, 70.0], [100.0, 20.0], [100.0, 70.0]])
+
+
+def test_points_seen_for_keyframes_count_grid_cells():
+    """The keyframe policy's count of points seen (Matches.n_visible) is the number of grid
+    cells map points project into, not the points: points crowded into one cell (a camera
+    climbing along its axis) count once, as tracking matches one point per cell."""
+    cam = CameraModel(128, 96, 100.0, 100.0, 63.5, 47.5)
+    config = TrackerConfig(grid_cell=32)
+    m, ids, cur = _crowded_map(cam, SPREAD)
     reprojector = Reprojector(cam, config)
     n_visible = reprojector.run(cur, m, ids, np.zeros(len(ids), bool))[3]
-    assert n_visible == 1 + len(spread)
+    assert n_visible == 1 + len(SPREAD)
     # points not matched in kf_cell_max_unmatched frames in a row leave the count: a spread
     # point's cell goes, the crowded cell stays while one of its points is still matched
     m.points.n_unmatched[ids[-1]] = config.kf_cell_max_unmatched
     m.points.n_unmatched[ids[:5]] = config.kf_cell_max_unmatched + 3
     m.points.n_unmatched[ids[5]] = config.kf_cell_max_unmatched - 1
-    assert reprojector.run(cur, m, ids, np.zeros(len(ids), bool))[3] == len(spread)
+    assert reprojector.run(cur, m, ids, np.zeros(len(ids), bool))[3] == len(SPREAD)
+
+
+def test_crowded_points_get_more_rounds_until_enough_match():
+    """One point per cell (the thesis) matches the crowded cell once; while fewer than
+    crowded_min_matches matched, each further round takes the next point of every cell, so
+    a map crowded into a few cells (a take-off climb's zoom-out) keeps its matches."""
+    cam = CameraModel(128, 96, 100.0, 100.0, 63.5, 47.5)
+    m, ids, cur = _crowded_map(cam, SPREAD)
+    none = np.zeros(len(ids), bool)
+
+    def matched(least: int) -> int:
+        config = TrackerConfig(grid_cell=32, crowded_min_matches=least)
+        return len(Reprojector(cam, config).run(cur, m, ids, none)[0])
+
+    assert matched(0) == 1 + len(SPREAD)  # one per cell
+    assert matched(7) == 7  # a round adds one (the crowded cell), the next reaches 7
+    assert matched(50) == len(ids)  # rounds until every point was tried
