@@ -160,3 +160,10 @@ def test_crowded_points_get_more_rounds_until_enough_match():
     assert matched(0) == 1 + len(SPREAD)  # one per cell
     assert matched(7) == 7  # a round adds one (the crowded cell), the next reaches 7
     assert matched(50) == len(ids)  # rounds until every point was tried
+    # points about one per cell are not crowded (a turn leaves few points, each in its cell):
+    # one round, however few matched
+    wide = np.array([[10.0, 10.0], [70.0, 10.0], [100.0, 10.0], [10.0, 50.0], [70.0, 50.0],
+                     [100.0, 50.0], [10.0, 80.0], [70.0, 80.0]])
+    m, ids, cur = _crowded_map(cam, wide)
+    none = np.zeros(len(ids), bool)
+    assert matched(50) == 1 + len(wide)

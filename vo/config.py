@@ -38,10 +38,10 @@ class TrackerConfig:
 
     # feature alignment and pose refinement (6.7.2, 6.7.3)
     max_matches: int = 200
-    # while fewer than this matched with one point per grid cell, another round takes the next
-    # point of each cell: a downward camera's take-off climb crowds its map's points into a
-    # few cells (the climb's 10x zoom-out left 8 of 62 to try and lost the map, RESULTS.md:
-    # fly-default-without-rangefinder); 0: one per cell, as the thesis
+    # while the visible points crowd into fewer cells than this (two or more per cell) and
+    # fewer matched, another round takes the next point of each cell: a downward camera's
+    # take-off climb (a 10x zoom-out) left 8 of 62 points to try and lost its map
+    # (RESULTS.md: tracker-crowded-cells); 0: one per cell, as the thesis
     crowded_min_matches: int = 50
     align2d_iterations: int = 10
     track_candidates: bool = True

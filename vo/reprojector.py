@@ -248,31 +248,43 @@ class Reprojector:
 
     def _match_passes(self, frame: Frame, map_: Map, cands: tuple, corners: tuple,
                       orb: OrbQuery, tried: np.ndarray):
-        """match_in_cells until no ORB descriptor is pending (one pass with patches):
+        """Rounds of one match per grid cell, another while the points are crowded into
+        fewer than crowded_min_matches cells (two or more per cell) and fewer matched:
         positions into the candidates, u, v, level; `tried` marks the points tried."""
+        found: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        least = self.config.crowded_min_matches
+        cells = len(np.unique(cands[2]))
+        crowded = cells < least and len(cands[2]) >= 2 * cells
+        n_found = 0
+        while True:
+            before = n_found
+            n_found = self._round(frame, map_, cands, corners, orb, tried, found, n_found)
+            if not crowded or n_found == before or n_found >= least or tried.all():
+                break
+        return tuple(np.concatenate([a[i] for a in found]) for i in range(3))
+
+    def _round(self, frame: Frame, map_: Map, cands: tuple, corners: tuple, orb: OrbQuery,
+               tried: np.ndarray, found: list, n_found: int) -> int:
+        """One match per cell among the points not tried yet: match_in_cells until no ORB
+        descriptor is pending (one pass with patches), appending to `found`; the count
+        matched so far."""
         cfg = self.config
         search = (cfg.track_corner_level, cfg.match_max_level, cfg.epipolar_margin_px,
                   cfg.zmssd_threshold, cfg.align2d_iterations)
-        found: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         max_level, max_matches, fallback = self.options
-        n_found = 0
-        while True:  # a round: one point per cell; another while they are crowded
-            done = np.zeros(self.n_cells, dtype=np.bool_)
-            lookahead, before = 1, n_found
-            while True:
-                k, uv, level = match_in_cells(
-                    self.camera.params, frame.T_c_w, cands, (map_.kf_pyr, map_.kf_T_c_w),
-                    frame.pyr.layout, frame.pyr.flat, corners, search,
-                    (max_level, max_matches - n_found, fallback), (done, tried, lookahead),
-                    orb.tables)
-                found.append((k, uv, level))
-                n_found += len(k)
-                if not orb.fill():
-                    break
-                lookahead *= 2
-            if n_found == before or n_found >= cfg.crowded_min_matches or tried.all():
-                break
-        return tuple(np.concatenate([a[i] for a in found]) for i in range(3))
+        done = np.zeros(self.n_cells, dtype=np.bool_)
+        lookahead = 1
+        while True:
+            k, uv, level = match_in_cells(
+                self.camera.params, frame.T_c_w, cands, (map_.kf_pyr, map_.kf_T_c_w),
+                frame.pyr.layout, frame.pyr.flat, corners, search,
+                (max_level, max_matches - n_found, fallback), (done, tried, lookahead),
+                orb.tables)
+            found.append((k, uv, level))
+            n_found += len(k)
+            if not orb.fill():
+                return n_found
+            lookahead *= 2
 
 
 # the corner table of a frame whose corners no search needs
