@@ -253,8 +253,8 @@ class Reprojector:
         positions into the candidates, u, v, level; `tried` marks the points tried."""
         found: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         least = self.config.crowded_min_matches
-        cells = len(np.unique(cands[2]))
-        crowded = cells < least and len(cands[2]) >= 2 * cells
+        cells = len(np.unique(cands[2])) if least > 0 else 0
+        crowded = 0 < cells < least and len(cands[2]) >= 2 * cells
         n_found = 0
         while True:
             before = n_found
