@@ -150,20 +150,17 @@ def test_crowded_points_get_more_rounds_until_enough_match():
     crowded_min_matches matched, each further round takes the next point of every cell, so
     a map crowded into a few cells (a take-off climb's zoom-out) keeps its matches."""
     cam = CameraModel(128, 96, 100.0, 100.0, 63.5, 47.5)
-    m, ids, cur = _crowded_map(cam, SPREAD)
-    none = np.zeros(len(ids), bool)
 
-    def matched(least: int) -> int:
+    def matched(least: int, spread: np.ndarray = SPREAD) -> int:
+        m, ids, cur = _crowded_map(cam, spread)
         config = TrackerConfig(grid_cell=32, crowded_min_matches=least)
-        return len(Reprojector(cam, config).run(cur, m, ids, none)[0])
+        return len(Reprojector(cam, config).run(cur, m, ids, np.zeros(len(ids), bool))[0])
 
     assert matched(0) == 1 + len(SPREAD)  # one per cell
     assert matched(7) == 7  # a round adds one (the crowded cell), the next reaches 7
-    assert matched(50) == len(ids)  # rounds until every point was tried
+    assert matched(50) == 6 + len(SPREAD)  # rounds until every point was tried
     # points about one per cell are not crowded (a turn leaves few points, each in its cell):
     # one round, however few matched
     wide = np.array([[10.0, 10.0], [70.0, 10.0], [100.0, 10.0], [10.0, 50.0], [70.0, 50.0],
                      [100.0, 50.0], [10.0, 80.0], [70.0, 80.0]])
-    m, ids, cur = _crowded_map(cam, wide)
-    none = np.zeros(len(ids), bool)
-    assert matched(50) == 1 + len(wide)
+    assert matched(50, wide) == 1 + len(wide)
