@@ -276,6 +276,11 @@ class Mapper:
         desc, desc_state = self._seed_depths(frame, slot, (u, v, level, f, rho, sigma), prior)
         if cfg.seed_plane_sigma > 0:
             self._seed_on_plane(frame, f, rho, sigma)
+        if cfg.seed_unmatched_prior:
+            # no keyframe saw them (ground a climb uncovers at the image's edges): the depth
+            # filter starts them from the prior, as the thesis's seeds (6.6.2)
+            unmatched = np.isnan(rho)
+            rho[unmatched], sigma[unmatched] = prior[0], prior[1]
         new = np.flatnonzero(np.isfinite(rho))
         with self.map.lock:
             ids = pts.add(slot, u[new], v[new], level[new], f[new], rho[new], sigma[new],
