@@ -227,8 +227,9 @@ class TrackerConfig:
     # off because at 640x480 it made survey-down and hover-down 2-4x worse, README)
     seed_plane_sigma: float = 0.0
     seed_plane_min_fit: float = 0.9
-    # a new candidate no keyframe matched starts from the depth prior (the scene's median
-    # depth, seed_sigma_ratio of it) instead of being dropped
+    # a new candidate no keyframe had in view (a climb's or a turn's uncovered ground) starts
+    # from the depth prior (the scene's median depth, seed_sigma_ratio of it) instead of
+    # being dropped
     seed_unmatched_prior: bool = False
     epipolar_margin_px: float = 2.0
     # "patch" (affine-warped patches, ZMSSD below zmssd_threshold per pixel) or "orb" (ORB

@@ -277,10 +277,7 @@ class Mapper:
         if cfg.seed_plane_sigma > 0:
             self._seed_on_plane(frame, f, rho, sigma)
         if cfg.seed_unmatched_prior:
-            # no keyframe saw them (ground a climb uncovers at the image's edges): the depth
-            # filter starts them from the prior, as the thesis's seeds (6.6.2)
-            unmatched = np.isnan(rho)
-            rho[unmatched], sigma[unmatched] = prior[0], prior[1]
+            self._seed_unseen(frame, slot, f, rho, sigma, prior)
         new = np.flatnonzero(np.isfinite(rho))
         with self.map.lock:
             ids = pts.add(slot, u[new], v[new], level[new], f[new], rho[new], sigma[new],
@@ -345,6 +342,25 @@ class Mapper:
         fill = np.isnan(rho) & (r > 0)
         rho[fill] = r[fill]
         sigma[fill] = cfg.seed_plane_sigma * r[fill]
+
+    def _seed_unseen(self, frame: Frame, slot: int, f: np.ndarray, rho: np.ndarray,
+                     sigma: np.ndarray, prior: tuple) -> None:
+        """Start the new candidates no keyframe matched (rho NaN) from the depth prior (rho0,
+        sigma0) when no searched keyframe had them in view at the scene's depth: ground a
+        climb uncovers at the image's edges or a turn brings in. Those a keyframe had in view
+        and did not match stay dropped (6.6.2)."""
+        rho0, sigma0 = prior[0], prior[1]
+        T_w_c = frame.T_w_c
+        X_w = (f / rho0) @ T_w_c[:3, :3].T + T_w_c[:3, 3]
+        unseen = np.isnan(rho)
+        for other in self._search_keyframes(frame, slot):
+            T = self.map.keyframes[other].T_c_w
+            X = X_w @ T[:3, :3].T + T[:3, 3]
+            ahead = X[:, 2] > 0
+            seen = np.zeros(len(X), dtype=bool)
+            seen[ahead] = self.camera.in_image(self.camera.project(X[ahead]))
+            unseen &= ~seen
+        rho[unseen], sigma[unseen] = rho0, sigma0
 
     def _stop_ba(self) -> bool:
         """True once tracking has a frame waiting: the BA ends early rather than fall
