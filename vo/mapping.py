@@ -346,21 +346,28 @@ class Mapper:
     def _seed_unseen(self, frame: Frame, slot: int, f: np.ndarray, rho: np.ndarray,
                      sigma: np.ndarray, prior: tuple) -> None:
         """Start the new candidates no keyframe matched (rho NaN) from the depth prior (rho0,
-        sigma0) when no searched keyframe had them in view at the scene's depth: ground a
-        climb uncovers at the image's edges or a turn brings in. Those a keyframe had in view
-        and did not match stay dropped (6.6.2)."""
+        sigma0) when the searched keyframes looked their way (their bearing is in view of one)
+        but had them out of view at the scene's depth: ground a climb uncovers at the image's
+        edges. Those a keyframe had in view and did not match, and those a turn brings in,
+        stay dropped (6.6.2)."""
         rho0, sigma0 = prior[0], prior[1]
-        T_w_c = frame.T_w_c
-        X_w = (f / rho0) @ T_w_c[:3, :3].T + T_w_c[:3, 3]
+        R_w_c, centre = frame.T_w_c[:3, :3], frame.T_w_c[:3, 3]
+        ray_w = f @ R_w_c.T
+        looked = np.zeros(len(f), dtype=bool)
         unseen = np.isnan(rho)
         for other in self._search_keyframes(frame, slot):
             T = self.map.keyframes[other].T_c_w
-            X = X_w @ T[:3, :3].T + T[:3, 3]
-            ahead = X[:, 2] > 0
-            seen = np.zeros(len(X), dtype=bool)
-            seen[ahead] = self.camera.in_image(self.camera.project(X[ahead]))
-            unseen &= ~seen
-        rho[unseen], sigma[unseen] = rho0, sigma0
+            looked |= self._in_view(ray_w @ T[:3, :3].T)
+            unseen &= ~self._in_view((ray_w / rho0 + centre) @ T[:3, :3].T + T[:3, 3])
+        fill = unseen & looked
+        rho[fill], sigma[fill] = rho0, sigma0
+
+    def _in_view(self, X: np.ndarray) -> np.ndarray:
+        """Camera-frame points (or directions) X in front of the camera and inside its image."""
+        seen = np.zeros(len(X), dtype=bool)
+        ahead = X[:, 2] > 0
+        seen[ahead] = self.camera.in_image(self.camera.project(X[ahead]))
+        return seen
 
     def _stop_ba(self) -> bool:
         """True once tracking has a frame waiting: the BA ends early rather than fall
