@@ -40,8 +40,8 @@ class TrackerConfig:
     max_matches: int = 200
     # while the visible points crowd into fewer cells than this (two or more per cell) and
     # fewer matched, another round takes the next point of each cell (a take-off climb's 10x
-    # zoom-out left 8 of 62 points to try and lost its map); 0, one per cell as in the thesis,
-    # until its closed-loop failures are understood (50: RESULTS.md, tracker-crowded-cells)
+    # zoom-out left 8 of 62 points to try and lost its map); 0, one per cell as in the thesis:
+    # seed_unmatched_prior keeps that map (50: RESULTS.md, tracker-crowded-cells)
     crowded_min_matches: int = 0
     align2d_iterations: int = 10
     track_candidates: bool = True
@@ -227,10 +227,15 @@ class TrackerConfig:
     # off because at 640x480 it made survey-down and hover-down 2-4x worse, README)
     seed_plane_sigma: float = 0.0
     seed_plane_min_fit: float = 0.9
-    # a new candidate no keyframe had in view (a climb's or a turn's uncovered ground) starts
-    # from the depth prior (the scene's median depth, seed_sigma_ratio of it) instead of
-    # being dropped
-    seed_unmatched_prior: bool = False
+    # a new candidate no keyframe matched that the keyframes looked towards but had out of
+    # view at the scene's depth (ground a take-off climb uncovers at the image's edges) starts
+    # from the depth prior instead of being dropped (6.6.2 drops it): the take-off's map then
+    # spreads with the view instead of crowding into its centre (RESULTS.md,
+    # tracker-unseen-prior)
+    seed_unmatched_prior: bool = True
+    # ... when they are at least this share of the keyframe's new candidates (a climb: 85-95%;
+    # a hand-held camera's few at an edge, tum_fr1_rpy and room-handheld: under 15%)
+    seed_prior_min_share: float = 0.25
     epipolar_margin_px: float = 2.0
     # "patch" (affine-warped patches, ZMSSD below zmssd_threshold per pixel) or "orb" (ORB
     # descriptors, 6.5.1, Hamming distance <= orb_max_distance) in every point search

@@ -81,6 +81,7 @@ LIMITS = {
     "seed_max_failures": SOME,
     "seed_plane_sigma": interval(0, 10, why="0: candidates no keyframe matched are dropped"),
     "seed_plane_min_fit": SHARE,
+    "seed_prior_min_share": SHARE,
     "epipolar_margin_px": interval(0, 1000),
     "orb_max_distance": interval(0, 256, why="Hamming distance of 256-bit descriptors"),
     "orb_track_min_level": LEVEL,

@@ -347,7 +347,8 @@ class Mapper:
                      sigma: np.ndarray, prior: tuple) -> None:
         """Start the new candidates no keyframe matched (rho NaN) from the depth prior (rho0,
         sigma0) when the searched keyframes looked their way (their bearing is in view of one)
-        but had them out of view at the scene's depth: ground a climb uncovers at the image's
+        but had them out of view at the scene's depth, and they are at least
+        seed_prior_min_share of the new candidates: ground a climb uncovers at the image's
         edges. Those a keyframe had in view and did not match, and those a turn brings in,
         stay dropped (6.6.2)."""
         rho0, sigma0 = prior[0], prior[1]
@@ -360,7 +361,8 @@ class Mapper:
             looked |= self._in_view(ray_w @ T[:3, :3].T)
             unseen &= ~self._in_view((ray_w / rho0 + centre) @ T[:3, :3].T + T[:3, 3])
         fill = unseen & looked
-        rho[fill], sigma[fill] = rho0, sigma0
+        if fill.sum() >= self.config.seed_prior_min_share * len(f):
+            rho[fill], sigma[fill] = rho0, sigma0
 
     def _in_view(self, X: np.ndarray) -> np.ndarray:
         """Camera-frame points (or directions) X in front of the camera and inside its image."""
