@@ -7,11 +7,14 @@ must publish while standing on the ground (issue 26): a run that sent nothing fa
 
 from __future__ import annotations
 
+import csv
+
 import numpy as np
 import pytest
 
 from daemon.config import Config
 from sim.autopilot.records import EventKind
+from sim.flight.frames_csv import COLUMNS, write_flight_frames
 from sim.flight.loop import ClosedLoop
 from sim.flight.mission import parse_mission
 from sim.flight.report import flight_report
@@ -62,3 +65,20 @@ def test_the_report_leads_with_the_verdict(flight):
     assert report["armed"] and report["steps_done"] == len(MISSION.steps)
     assert report["suggested_viso_delay_ms"] == pytest.approx(38.0, abs=0.01)  # whole us stamps
     assert report["expert"]["messages_received"] == len(flight.sent)
+
+
+def test_the_frames_csv_has_a_row_per_frame_with_the_truth(flight, tmp_path):
+    path = tmp_path / "frames.csv"
+    write_flight_frames(path, flight)
+    rows = list(csv.DictReader(path.open()))
+    assert tuple(rows[0]) == COLUMNS and len(rows) == len(flight.rows)
+    sent = [r for r in rows if r["sent"] == "1"]
+    assert all(r["x"] != "nan" for r in sent)
+    assert all(r["x"] == "nan" for r in rows if r["sent"] == "0")
+    # what we sent is where the vehicle was, within its covariance, in the truth's frame
+    gaps = [np.hypot(float(r["x"]) - float(r["true_x"]), float(r["y"]) - float(r["true_y"]))
+            for r in sent]
+    stds = [np.hypot(float(r["std_x"]), float(r["std_y"])) for r in sent]
+    assert np.median(gaps) < 0.1 and np.median(gaps) < 3 * np.median(stds)
+    tracked = [r for r in rows if r["map_x"] != "nan"]
+    assert tracked and all(int(r["inliers"]) <= int(r["matches"]) for r in tracked)

@@ -78,3 +78,11 @@ def test_bad_mission_file_is_one_line_and_exit_2(tmp_path, capsys):
     assert len(err) == 1 and "bad.toml: step 2 needs exactly one action key" in err[0]
     assert main(["fly", "nosuchmission"]) == 2
     assert "no mission 'nosuchmission'" in capsys.readouterr().err
+
+
+def test_frames_csv_is_for_one_virtual_clock_flight(tmp_path, capsys):
+    out = str(tmp_path / "f.csv")
+    assert main(["fly", "--seeds", "0-1", "--frames-csv", out]) == 2
+    assert "--frames-csv writes one virtual-clock flight" in capsys.readouterr().err
+    assert main(["fly", "--realtime", "--frames-csv", out]) == 2
+    assert not (tmp_path / "f.csv").exists()

@@ -16,6 +16,7 @@ from daemon.config import Config, load_config, replace
 from daemon.run_command import setup_logging
 from sdvl.errors import InputError
 from sim.flight.flight_run import FlightRun, Timing
+from sim.flight.frames_csv import write_flight_frames
 from sim.flight.loop import ClosedLoop
 from sim.flight.mission import DEFAULT_MISSION, Mission, load_mission
 from sim.flight.report import flight_report, format_flight
@@ -65,6 +66,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --realtime: N busy processes beside it (a loaded machine)")
     parser.add_argument("--plot", type=Path, default=None, metavar="OUT.png",
                         help="planned and flown path, the autopilot's estimate and ours")
+    parser.add_argument("--frames-csv", type=Path, default=None, metavar="FILE",
+                        help="one flight on the virtual clock: a row per frame (the tracker's "
+                             "counts and map pose, our estimate and its std, the truth; "
+                             "sim/flight/frames_csv.py)")
     parser.add_argument("--json", action="store_true",
                         help="one JSON object (keys: sim/flight/report.py KEYS)")
     parser.add_argument("--quiet", action="store_true",
@@ -99,6 +104,9 @@ def run(args: argparse.Namespace) -> int:
     if args.latency_ms is not None and (args.realtime or args.latency_ms < 0):
         raise InputError("--latency-ms is the virtual-clock loop's latency (>= 0); --realtime "
                          "measures its own")
+    if args.frames_csv is not None and (args.seeds is not None or args.realtime):
+        raise InputError("--frames-csv writes one virtual-clock flight: use --seed N, "
+                         "without --realtime")
     mission = load_mission(args.mission)
     config = load_config(args.config) if args.config else Config()
     if args.depth:
@@ -114,6 +122,8 @@ def run(args: argparse.Namespace) -> int:
         from sim.flight.plot import plot_flight
 
         plot_flight(flight, args.plot, f"sdvl fly {mission.name}, seed {args.seed}")
+    if args.frames_csv is not None:
+        write_flight_frames(args.frames_csv, flight)
     print(json.dumps(report) if args.json else format_flight(report, len(mission.steps)))
     return 0
 

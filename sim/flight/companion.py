@@ -28,6 +28,7 @@ from daemon.statustext import StatusTexts
 from daemon.streams import StreamKeeper
 from daemon.tracking import track
 from sdvl.errors import InputError
+from sim.flight.frames_csv import frame_details
 from sim.replay.autopilot_process import VisionMessage
 
 HOUSEKEEPING_S = 0.05  # the service's housekeeping period (daemon/service.py)
@@ -143,7 +144,8 @@ class LockstepCompanion:
                           "track": tracked.track_s, "sent": estimate is not None,
                           "send": self.clock() - tracked.t_capture if estimate else None,
                           "quality": result.quality, "has_pose": result.has_pose,
-                          "new_segment": result.new_segment})
+                          "new_segment": result.new_segment,
+                          **frame_details(result, estimate)})
 
     def close(self) -> None:
         if self.tracker is not None:
