@@ -273,11 +273,13 @@ class Mapper:
             rho, sigma = measured_inverse_depth(depth, np.column_stack((u, v)), f, cfg)
         rho0 = 1.0 / d_med
         prior = (rho0, cfg.seed_sigma_ratio * rho0, cfg.seed_a, cfg.seed_b, 1.0 / d_min)
-        desc, desc_state = self._seed_depths(frame, slot, (u, v, level, f, rho, sigma), prior)
+        searched = self._search_keyframes(frame, slot)
+        desc, desc_state = self._seed_depths(frame, searched, (u, v, level, f, rho, sigma),
+                                             prior)
         if cfg.seed_plane_sigma > 0:
             self._seed_on_plane(frame, f, rho, sigma)
         if cfg.seed_unmatched_prior:
-            self._seed_unseen(frame, slot, f, rho, sigma, prior)
+            self._seed_unseen(frame, searched, f, rho, sigma, prior)
         new = np.flatnonzero(np.isfinite(rho))
         with self.map.lock:
             ids = pts.add(slot, u[new], v[new], level[new], f[new], rho[new], sigma[new],
@@ -294,12 +296,13 @@ class Mapper:
         else:
             self.skipped_ba += int(cfg.local_ba)
 
-    def _seed_depths(self, frame: Frame, slot: int, features: tuple,
+    def _seed_depths(self, frame: Frame, searched: list[int], features: tuple,
                      prior: tuple) -> tuple[np.ndarray, np.ndarray]:
-        """Search new features (u, v, level, f, rho, sigma; rho NaN) of keyframe `frame` in its
-        covisible keyframes until each has a depth: a match is the first update of the depth
-        filter from `prior` (rho0, sigma0, a0, b0, rho_range), set in rho, sigma. Returns the
-        ORB descriptors (and their states) computed for the features meanwhile."""
+        """Search new features (u, v, level, f, rho, sigma; rho NaN) of keyframe `frame` in the
+        keyframe slots `searched` (_search_keyframes) until each has a depth: a match is the
+        first update of the depth filter from `prior` (rho0, sigma0, a0, b0, rho_range), set in
+        rho, sigma. Returns the ORB descriptors (and their states) computed for the features
+        meanwhile."""
         u, v, _, _, rho, _ = features
         levels = self.config.pyramid_levels
         desc = np.zeros((len(u), levels, DESC_BYTES), dtype=np.uint8)
@@ -311,7 +314,7 @@ class Mapper:
             desc[rows], desc_state[rows] = d, st
 
         T_w_new = frame.T_w_c
-        for other in self._search_keyframes(frame, slot):
+        for other in searched:
             if not np.isnan(rho).any():
                 break
             kf = self.map.keyframes[other]
@@ -343,10 +346,10 @@ class Mapper:
         rho[fill] = r[fill]
         sigma[fill] = cfg.seed_plane_sigma * r[fill]
 
-    def _seed_unseen(self, frame: Frame, slot: int, f: np.ndarray, rho: np.ndarray,
+    def _seed_unseen(self, frame: Frame, searched: list[int], f: np.ndarray, rho: np.ndarray,
                      sigma: np.ndarray, prior: tuple) -> None:
         """Start the new candidates no keyframe matched (rho NaN) from the depth prior (rho0,
-        sigma0) when the searched keyframes looked their way (their bearing is in view of one)
+        sigma0) when the keyframes `searched` looked their way (their bearing is in view of one)
         but had them out of view at the scene's depth, and they are at least
         seed_prior_min_share of the new candidates: ground a climb uncovers at the image's
         edges. Those a keyframe had in view and did not match, and those a turn brings in,
@@ -356,7 +359,7 @@ class Mapper:
         ray_w = f @ R_w_c.T
         looked = np.zeros(len(f), dtype=bool)
         unseen = np.isnan(rho)
-        for other in self._search_keyframes(frame, slot):
+        for other in searched:
             T = self.map.keyframes[other].T_c_w
             looked |= self._in_view(ray_w @ T[:3, :3].T)
             unseen &= ~self._in_view((ray_w / rho0 + centre) @ T[:3, :3].T + T[:3, 3])

@@ -145,7 +145,7 @@ class LockstepCompanion:
                           "send": self.clock() - tracked.t_capture if estimate else None,
                           "quality": result.quality, "has_pose": result.has_pose,
                           "new_segment": result.new_segment,
-                          **frame_details(result, estimate)})
+                          "details": frame_details(result, estimate)})
 
     def close(self) -> None:
         if self.tracker is not None:

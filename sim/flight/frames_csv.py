@@ -1,6 +1,7 @@
 """`sdvl fly --frames-csv FILE`: one row per frame of a virtual-clock flight, to see where and
-why a flight went wrong: the tracker's counts and its pose in its map, the estimate we sent
-with its standard deviation, and where the vehicle truly was (NED, the world's frame, as the
+why a flight went wrong: the tracker's columns of `sdvl track --frames-csv` (but the error,
+which is the flight's truth here), its camera position in its map, the estimate we sent with
+its standard deviation, and where the vehicle truly was (NED, the world's frame, as the
 estimate once the autopilot's origin is set)."""
 
 from __future__ import annotations
@@ -10,38 +11,39 @@ from pathlib import Path
 
 import numpy as np
 
-COLUMNS = ("t", "quality", "matches", "attempts", "inliers", "keyframe", "new_segment",
-           "relocalized", "map_x", "map_y", "map_z", "sent", "x", "y", "z", "std_x", "std_y",
-           "std_z", "true_x", "true_y", "true_z")
+from sim.track_command import FRAME_COLUMNS, frame_row
+
+TRACKER_COLUMNS = tuple(c for c in FRAME_COLUMNS if c != "error_m")
+XYZ_COLUMNS = ("map_x", "map_y", "map_z", "x", "y", "z", "std_x", "std_y", "std_z", "true_x",
+               "true_y", "true_z")
+COLUMNS = (*TRACKER_COLUMNS, "sent", *XYZ_COLUMNS)
 NO_XYZ = (np.nan, np.nan, np.nan)
 
 
 def frame_details(result: object, estimate: object | None) -> dict:
-    """What a row adds to the companion's record of a frame: the tracker's counts, its
-    camera position in its map (NaN without a pose), our position and its std (NaN when
-    nothing was sent)."""
+    """A frame's row but the truth: the tracker's columns, its camera position in its map
+    (NaN without a pose), our position and its std (NaN when nothing was sent)."""
+    row = {k: v for k, v in frame_row(result).items() if k in TRACKER_COLUMNS}
     pose = result.T_w_c[:3, 3] if result.T_w_c is not None else NO_XYZ
     ours, std = NO_XYZ, NO_XYZ
     if estimate is not None:
         ours = estimate.position
         std = np.sqrt(np.maximum(np.diag(estimate.pose_covariance)[:3], 0.0))
-    return {"matches": result.n_matches, "attempts": result.n_attempts,
-            "inliers": result.n_inliers, "keyframe": int(result.keyframe),
-            "relocalized": int(getattr(result, "relocalized", False)),
-            "map_position": tuple(pose), "position": tuple(ours), "std": tuple(std)}
+    row["sent"] = int(estimate is not None)
+    row.update(zip(XYZ_COLUMNS[:9], (*pose, *ours, *std), strict=True))
+    return row
 
 
 def write_flight_frames(path: Path, run: object) -> None:
-    """The rows of a FlightRun (one per tracked frame) as CSV, each with the true position at
-    the frame's time."""
+    """The frame rows of a FlightRun (`details` of each of its rows) as CSV, each with the
+    true position at the frame's time."""
     truth = run.truth
+    t = np.array([r["t_source"] for r in run.rows])
+    true = np.column_stack([np.interp(t, truth.t, truth.positions[:, k]) for k in range(3)])
     with open(path, "w", newline="") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(COLUMNS)
-        for r in run.rows:
-            true = [np.interp(r["t_source"], truth.t, truth.positions[:, k]) for k in range(3)]
-            ours = (f"{v:.4f}" for v in (*r["position"], *r["std"], *true))
-            writer.writerow([f"{r['t_source']:.3f}", r["quality"], r["matches"], r["attempts"],
-                             r["inliers"], r["keyframe"], int(r["new_segment"]),
-                             r["relocalized"], *(f"{v:.4f}" for v in r["map_position"]),
-                             int(r["sent"]), *ours])
+        writer = csv.DictWriter(fh, fieldnames=list(COLUMNS))
+        writer.writeheader()
+        for r, xyz in zip(run.rows, true, strict=True):
+            row = {**r["details"], **dict(zip(XYZ_COLUMNS[9:], xyz, strict=True))}
+            row.update({k: f"{row[k]:.4f}" for k in XYZ_COLUMNS})
+            writer.writerow(row)
