@@ -58,6 +58,22 @@ def test_hover_command_holds_the_weight_and_touching_down_is_recorded():
     assert vehicle.on_ground and vehicle.touchdown_speeds[0] > 1.0
 
 
+def test_the_accelerometer_feels_the_gear_stop_a_touch_down():
+    """A real flight log shows a landing's spike: the speed the gear takes out is in the
+    specific force, its integral over the stop (the motors off: no thrust in it)."""
+    vehicle = body()
+    run(vehicle, 1.0, 0.05)
+    run(vehicle, hover_command(), 0.5)
+    while not vehicle.touchdown_speeds:
+        vehicle.step(DT, np.zeros(4))
+    felt = (vehicle.specific_force[2] + GRAVITY) * DT
+    for _ in range(round(0.1 / DT)):
+        vehicle.step(DT, np.zeros(4))
+        felt += (vehicle.specific_force[2] + GRAVITY) * DT
+    assert vehicle.touchdown_speeds[0] > 1.0
+    assert -felt == pytest.approx(vehicle.touchdown_speeds[0], rel=0.01)
+
+
 def test_motors_spin_up_and_down_with_their_time_constants():
     vehicle = body()
     run(vehicle, 0.0, 0.1)

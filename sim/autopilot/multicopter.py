@@ -8,7 +8,8 @@ The forces follow ArduPilot SITL's multicopter (libraries/SITL/SIM_Frame.cpp
 axis, momentum drag sqrt(thrust x air density x disc area) x mdrag_coef x the body-horizontal
 airspeed, bluff-body drag 0.5 rho areaCd v|v|. Integration is semi-implicit Euler at the step the
 caller gives (the flight controller's 400 Hz loop). Ground contact: the vehicle stands level on
-its gear until the thrust lifts it; touching down stops it and records the vertical speed.
+its gear until the thrust lifts it; touching down stops it and records the vertical speed, and
+the accelerometer feels that stop over the gear's travel (a landing's spike in a flight log).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from sim.autopilot.airframe import AIR_DENSITY, GRAVITY, Airframe
 from sim.autopilot.wind import WindField
 
 FRICTION_TAU_S = 0.05  # sliding on the ground dies out this fast
+GEAR_STOP_S = 0.02  # a touch-down's speed goes in the gear's few mm of travel (5 mm at 0.5 m/s)
 GRAVITY_NED = np.array([0.0, 0.0, GRAVITY])
 
 
@@ -59,6 +61,8 @@ class Multicopter:
         self.specific_force = -GRAVITY_NED.copy()
         self.on_ground = True
         self.touchdown_speeds: list[float] = []
+        self._gear_left = 0.0  # touch-down speed (m/s) the gear has still to take out
+        self._gear_decel = 0.0  # and how fast (m/s^2)
         self.wind = wind
         self._steps = 0
 
@@ -75,7 +79,14 @@ class Multicopter:
         else:
             self.on_ground = False
             self._fly(dt, torque)
-        self.specific_force = self.rotation.T @ (self.accel - GRAVITY_NED)
+        self.specific_force = self.rotation.T @ (self.accel + self._gear_stop(dt) - GRAVITY_NED)
+
+    def _gear_stop(self, dt: float) -> np.ndarray:
+        """The gear's push (NED, m/s^2) taking out the last touch-down's speed over GEAR_STOP_S:
+        the body stops at contact, the accelerometer feels it over the gear's travel."""
+        taken = min(self._gear_left, self._gear_decel * dt)
+        self._gear_left -= taken
+        return np.array([0.0, 0.0, -taken / dt])
 
     def _spin(self, command: np.ndarray, dt: float) -> None:
         """Each motor approaches its command with the spin-up or spin-down time constant."""
@@ -118,7 +129,9 @@ class Multicopter:
             self._touch_down()
 
     def _touch_down(self) -> None:
-        self.touchdown_speeds.append(float(self.velocity[2]))
+        speed = float(self.velocity[2])
+        self.touchdown_speeds.append(speed)
+        self._gear_left, self._gear_decel = speed, speed / GEAR_STOP_S
         self.on_ground = True
         self.position[2] = self.contact_z
         self.velocity[2] = 0.0
