@@ -124,3 +124,39 @@ def test_a_stale_frame_after_a_blackout_gets_no_pose(covered_flight, confirm):
         assert [r.relocalized for r in results[stale:]].index(True) <= 2
         assert sum(r.relocalized for r in results) == 1
         assert sum(r.new_segment and not r.relocalized for r in results) == 1
+
+
+def _spinning(j: int) -> np.ndarray:
+    """Pose of frame j of a downward camera that starts yawing at frame 40, 6 degrees a frame
+    (180 deg/s, ArduCopter's pilot yaw rate is 202.5), up to 90 degrees: its image rolls."""
+    yaw = np.radians(min(max(6.0 * (j - 39), 0.0), 90.0))
+    return exp_se3(np.array([0.0, 0.0, 0.0, 0.0, 0.0, yaw])) @ _flight(j)
+
+
+SPIN_BLURRED = range(43, 50)
+
+
+@pytest.mark.parametrize("features", [True, False])
+def test_a_yaw_spin_relocalises_by_features(data_dir, features):
+    # lost (blurred) in a fast yaw: the view comes back rolled by up to 90 degrees from every
+    # keyframe's, past direct alignment's reach; ORB matches to the map's points and PnP
+    # (vo.feature_relocalization) find it in the same map
+    cam = small_camera()
+    tex = load_texture(data_dir)
+    tracker = Tracker(cam, TrackerConfig(reloc_features=features))
+    blur = np.full((cam.height, cam.width), 90, np.uint8)
+    results = [tracker.process(blur if j in SPIN_BLURRED
+                               else render_plane(tex, cam, _spinning(j)), j / 30.0)
+               for j in range(80)]
+    assert results[SPIN_BLURRED.stop - 1].quality == "lost"
+    later = results[SPIN_BLURRED.stop:]
+    relocalised = [k for k, r in enumerate(later) if r.relocalized]
+    assert bool(relocalised) == features
+    if features:
+        assert relocalised[0] <= 5
+        assert sum(r.new_segment and not r.relocalized for r in results) == 1  # no new map
+        t = np.array([r.t for r in results if r.has_pose])
+        gt = Trajectory.from_matrices(t, np.array([np.linalg.inv(_spinning(round(x * 30)))
+                                                   for x in t]))
+        est = Trajectory.from_matrices(t, np.array([r.T_w_c for r in results if r.has_pose]))
+        assert evaluate(gt, est, "sim3").ate_rmse_m < 0.01

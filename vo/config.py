@@ -125,6 +125,13 @@ class TrackerConfig:
     reloc_max_move_depths: float = 0.5
     # keyframes tried per lost frame (the newest ones; 0 = all)
     reloc_max_keyframes: int = 0
+    # when direct alignment finds no pose, the lost frame's level-0 corners are matched by ORB
+    # descriptor (Hamming distance <= reloc_orb_max_distance) to each keyframe's points and
+    # PnP poses the reloc_feature_keyframes keyframes with most matches (a view rolled or
+    # turned past direct alignment's reach; vo.feature_relocalization)
+    reloc_features: bool = True
+    reloc_orb_max_distance: int = 50
+    reloc_feature_keyframes: int = 3
     # while relocalising, a new map is initialised on the side (if reinit_when_lost); it is
     # taken once relocalisation has failed this long (seconds) with a usable view: a time, not
     # a frame count (it was 30), so a 10 Hz camera does not wait three times longer; 1.5 s cost

@@ -1,6 +1,7 @@
 """Relocalisation (thesis 6.9): while tracking is lost, find the frame's pose in the map by
-aligning it to keyframes, newest first, from priors that phase correlation gives, then matching
-the map's points; a pose is accepted with enough inliers and a well determined rotation."""
+aligning it to keyframes, newest first, from priors that phase correlation gives, or else from
+ORB matches to the keyframes' points and PnP (vo.feature_relocalization), then matching the
+map's points; a pose is accepted with enough inliers and a well determined rotation."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import numpy as np
 
 from calib.camera import CameraModel
 from vo.config import TrackerConfig
+from vo.feature_relocalization import FeatureRelocalizer
 from vo.frame import Frame
 from vo.frame_alignment import align_frame
 from vo.map_matching import MapMatcher, Matches
@@ -25,27 +27,42 @@ class Relocalizer:
     def __init__(self, camera: CameraModel, config: TrackerConfig, matcher: MapMatcher):
         self.camera, self.config, self.matcher = camera, config, matcher
         self.map = matcher.map
+        self.features = FeatureRelocalizer(camera, config, matcher.map)
 
     def find(self, frame: Frame, timings: dict[str, float], last: Frame | None = None
              ) -> tuple[Matches, np.ndarray] | None:
         """The first reference that gives frame a pose: the last tracked frame `last` (a fast
         turn loses the track where the camera still stands, often far from any keyframe),
-        then the keyframes, newest first. Returns the matches (the refined pose in them) and
+        then the keyframes, newest first, by direct alignment; then (reloc_features) the
+        keyframes by ORB matches and PnP. Returns the matches (the refined pose in them) and
         the pose's covariance; None when no reference does."""
         cfg = self.config
         t0 = time.perf_counter()
         found = None
         for ref, ids, px in self._references(last):
-            if not self._align_to_reference(frame, ref, ids, px) < cfg.reloc_max_residual_ratio:
-                continue
-            m = self.matcher.match(frame, {})
-            if m.n_inliers >= cfg.reloc_min_matches and self.matcher.quality(m) != Quality.BAD:
-                cov = pose_covariance(m.H, m.sigma, orthonormalized(m.T))
-                if _rotation_std_deg(cov) <= cfg.reloc_max_rotation_std_deg:
-                    found = m, cov
+            if self._align_to_reference(frame, ref, ids, px) < cfg.reloc_max_residual_ratio:
+                found = self._verified(frame)
+                if found is not None:
+                    break
+        if found is None and cfg.reloc_features:
+            for T in self.features.poses(frame):
+                frame.T_c_w = T
+                found = self._verified(frame)
+                if found is not None:
                     break
         timings["relocalize"] = ms_since(t0)
         return found
+
+    def _verified(self, frame: Frame) -> tuple[Matches, np.ndarray] | None:
+        """The map's points matched from frame's pose prior, refined: with its covariance when
+        they are reloc_min_matches inliers, not of bad quality, and the rotation well
+        determined; else None."""
+        cfg = self.config
+        m = self.matcher.match(frame, {})
+        if m.n_inliers < cfg.reloc_min_matches or self.matcher.quality(m) == Quality.BAD:
+            return None
+        cov = pose_covariance(m.H, m.sigma, orthonormalized(m.T))
+        return (m, cov) if _rotation_std_deg(cov) <= cfg.reloc_max_rotation_std_deg else None
 
     def _references(self, last: Frame | None):
         """(frame, point ids, level-0 pixels) to align a lost frame to: the last tracked frame
