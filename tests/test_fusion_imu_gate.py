@@ -1,15 +1,17 @@
 """What the fusion keeps from its filter: a message repeating a stamp (repeats.py) and an IMU
-spike (imu_gate.py); a real change of acceleration passes, and an IMU stream that keeps failing
-is dropped and taken back."""
+spike (imu_gate.py); a real change of acceleration and a touch-down's jolt pass, and an IMU
+stream that keeps failing is dropped and taken back."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
 from daemon.fusion.imu_gate import SPIKE_FLOOR, ImuGate
 from daemon.fusion.repeats import Repeats
 from daemon.fusion.stream_health import READMIT_S
+from sim.autopilot.imu import Lowpass2
 
 HOVER = np.array([0.0, 0.0, -9.81])
 
@@ -38,6 +40,36 @@ def test_a_spike_is_rejected_and_a_lasting_change_passes_within_half_the_window(
     verdicts = feed(gate, accels + [step] * 20)
     assert verdicts[50] is False and all(verdicts[:50]) and all(verdicts[51:100])
     assert all(verdicts[104:])  # the median has moved: the new acceleration is real
+
+
+def _touch_down(speed: float, phase: int) -> list[np.ndarray]:
+    """A hover's filtered IMU at 50 Hz with the gear stopping a descent of `speed` (m/s) over
+    20 ms: the jolt through ArduPilot's 20 Hz 2-pole filter at 400 Hz (sim.autopilot.imu),
+    sampled every 8th loop from `phase`."""
+    lowpass = Lowpass2(20.0, 400.0)
+    jolt = np.array([0.0, 0.0, speed / 0.02])
+    loops = [lowpass.apply(HOVER - (jolt if 400 <= k < 408 else 0.0)) for k in range(800)]
+    return [a + n for a, n in zip(loops[phase::8], noisy(100, mean=np.zeros(3)), strict=True)]
+
+
+@pytest.mark.parametrize("speed", [0.5, 1.0, 1.5])
+def test_a_touch_down_jolt_passes_while_descending_at_every_phase(speed):
+    # missing the jolt, the filter keeps descending past the ground, and LAND (its climb rate
+    # ours) never detects the landing; the same samples while hovering are corrupt
+    spiked = 0
+    for phase in range(8):
+        samples = _touch_down(speed, phase)
+        plain = feed(ImuGate(), samples)
+        spiked += not all(plain)
+        assert all(feed(ImuGate(descent=lambda: speed), samples)), phase
+        assert feed(ImuGate(descent=lambda: 0.0), samples) == plain
+    assert spiked >= 3  # the spike gate alone drops it at some phases
+
+
+def test_a_sideways_spike_is_no_jolt():
+    accels = noisy(100)
+    accels[50] = HOVER + np.array([2 * SPIKE_FLOOR, 0.0, -SPIKE_FLOOR])
+    assert feed(ImuGate(descent=lambda: 1.0), accels)[50] is False
 
 
 def test_a_repeated_stamp_is_a_copy_per_message_kind_and_sensor():

@@ -60,7 +60,7 @@ from daemon.fusion.sensors import (
     parse,
 )
 from daemon.fusion.source_choice import SourceChoice
-from daemon.fusion.state import THETA, NavFilter
+from daemon.fusion.state import THETA, VEL, NavFilter
 from daemon.fusion.timeline import Event, Timeline
 from daemon.mounting import body_from_camera
 from vo.result import Quality
@@ -94,7 +94,7 @@ class FusionEstimator:
         self.sources: dict[str, str] = {}  # "imu"/"baro" -> the message type fused
         self._choices: dict[str, SourceChoice] = {}
         self._last_baro_t = -math.inf  # time of the last barometer sample fused
-        self.imu_gate = ImuGate(report)
+        self.imu_gate = ImuGate(report, self._descent)
         self.prior_watch = PriorWatch(report)
         self.imu_noise = ImuNoise(cfg.accel_noise)  # of the stream fused
         self.repeats = Repeats()
@@ -368,6 +368,12 @@ class FusionEstimator:
             m.update_baro(self.filter, altitude)
         else:
             self.filter.has_baro = False
+
+    def _descent(self) -> float:
+        """The filter's descent speed (m/s, NED z velocity) now, for the IMU gate's jolts
+        (-inf before it starts: no jolt is believed then)."""
+        f = self.filter
+        return float(f.x[VEL][2]) if f.t is not None else -math.inf
 
     def _imu_fresh(self, t: float, nav: NavFilter | None = None) -> bool:
         f = nav or self.filter
