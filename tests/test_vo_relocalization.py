@@ -69,6 +69,17 @@ def test_without_relocalisation_a_new_map_starts(covered_flight):
     assert any(r.quality == "initializing" for r in results[COVERED.start:])
 
 
+def assert_one_map(results, pose_of) -> None:
+    """No new map, and the same map before and after a loss: one similarity aligns the poses
+    to the truth (pose_of(frame index) = T_c_w, frames at 30 fps) within 1 cm."""
+    assert sum(r.new_segment and not r.relocalized for r in results) == 1
+    t = np.array([r.t for r in results if r.has_pose])
+    gt = Trajectory.from_matrices(t, np.array([np.linalg.inv(pose_of(round(x * 30)))
+                                               for x in t]))
+    est = Trajectory.from_matrices(t, np.array([r.T_w_c for r in results if r.has_pose]))
+    assert evaluate(gt, est, "sim3").ate_rmse_m < 0.01
+
+
 def _rolling(j: int) -> np.ndarray:
     """Pose of frame j of a flight that starts rolling about the optical axis at frame 40, 3
     degrees a frame, up to 25 degrees."""
@@ -93,13 +104,7 @@ def test_a_fast_turn_relocalises_in_the_same_map(data_dir):
     later = results[BLURRED.stop:]
     first = next(k for k, r in enumerate(later) if r.has_pose)
     assert first <= 5 and later[first].relocalized
-    assert sum(r.new_segment and not r.relocalized for r in results) == 1  # no new map
-    # the same map before and after the turn: one similarity aligns both
-    t = np.array([r.t for r in results if r.has_pose])
-    gt = Trajectory.from_matrices(t, np.array([np.linalg.inv(_rolling(round(x * 30)))
-                                               for x in t]))
-    est = Trajectory.from_matrices(t, np.array([r.T_w_c for r in results if r.has_pose]))
-    assert evaluate(gt, est, "sim3").ate_rmse_m < 0.01
+    assert_one_map(results, _rolling)
 
 
 @pytest.mark.parametrize("confirm", [True, False])
@@ -154,9 +159,4 @@ def test_a_yaw_spin_relocalises_by_features(data_dir, features):
     assert bool(relocalised) == features
     if features:
         assert relocalised[0] <= 5
-        assert sum(r.new_segment and not r.relocalized for r in results) == 1  # no new map
-        t = np.array([r.t for r in results if r.has_pose])
-        gt = Trajectory.from_matrices(t, np.array([np.linalg.inv(_spinning(round(x * 30)))
-                                                   for x in t]))
-        est = Trajectory.from_matrices(t, np.array([r.T_w_c for r in results if r.has_pose]))
-        assert evaluate(gt, est, "sim3").ate_rmse_m < 0.01
+        assert_one_map(results, _spinning)
