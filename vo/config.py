@@ -126,9 +126,10 @@ class TrackerConfig:
     # keyframes tried per lost frame (the newest ones; 0 = all)
     reloc_max_keyframes: int = 0
     # when direct alignment finds no pose, the lost frame's level-0 corners are matched by ORB
-    # descriptor (Hamming distance <= reloc_orb_max_distance) to each keyframe's points and
-    # PnP poses the reloc_feature_keyframes keyframes with most matches (a view rolled or
-    # turned past direct alignment's reach; vo.feature_relocalization)
+    # descriptor (Hamming distance <= reloc_orb_max_distance) to the map's points, and PnP
+    # poses it from all matches, then from those of the reloc_feature_keyframes keyframes
+    # hosting most (a view rolled or turned past direct alignment's reach; a 90-degree yaw
+    # spin relocalises: tests/test_vo_relocalization.py; vo.feature_relocalization)
     reloc_features: bool = True
     reloc_orb_max_distance: int = 50
     reloc_feature_keyframes: int = 3

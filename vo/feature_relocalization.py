@@ -23,7 +23,7 @@ MIN_PNP_POINTS = 6  # below this solvePnPRansac has no minimal set to spare
 
 
 class FeatureRelocalizer:
-    """Poses for a lost frame from ORB matches to the map's converged points and PnP."""
+    """Poses for a lost frame from ORB matches to the map's points and PnP."""
 
     def __init__(self, camera: CameraModel, config: TrackerConfig, map_: Map):
         self.camera, self.config, self.map = camera, config, map_
