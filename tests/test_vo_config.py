@@ -47,3 +47,10 @@ def test_unknown_key_and_bad_file(tmp_path):
         TrackerConfig.from_toml(tmp_path / "missing.toml")
     with pytest.raises(InputError):
         TrackerConfig.from_dict({"align_min_level": 4, "align_max_level": 2})
+
+
+def test_ransac_pixels_grow_with_a_wider_image_and_never_shrink():
+    c = TrackerConfig()
+    assert c.ransac_pixels(640) == c.ransac_pixels(320) == (2.0, 4.0)
+    inlier, rescue = c.ransac_pixels(1241)  # KITTI's width
+    assert inlier == pytest.approx(2.0 * 1241 / 640) and rescue == pytest.approx(2 * inlier)

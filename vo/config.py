@@ -69,11 +69,17 @@ class TrackerConfig:
     # outlier rejection (6.8): RANSAC over 5-point subsets of the matches, inliers within
     # ransac_threshold_px (image pixels), hypotheses for ransac_probability at most
     # ransac_max_hypotheses; then outliers within ransac_rescue_px of the inlier pose rejoin.
-    # On by default: kitti00 0.86 m mean over tracker seeds 0-9 (2.79 m off at seed 0), tum 687/723
-    # (RESULTS.md: tracker-rejection-default)
+    # On by default: kitti00 0.77 m mean over tracker seeds 0-9 (2.79 m off at seed 0), tum
+    # 687/723 (RESULTS.md: tracker-rejection-default, tracker-ransac-width)
     outlier_rejection: bool = True
     ransac_threshold_px: float = 2.0
     ransac_rescue_px: float = 4.0
+    # both are pixels of an image this wide, and grow with a wider one (the same blur and
+    # coarse-level search span more of its pixels), never shrink below them (a pixel of a
+    # smaller image is already coarse next to the matches' noise): a 1241-pixel car camera
+    # judges at 3.9 / 7.8 px: kitti00 0.86 -> 0.77 m mean over tracker seeds 0-9 (seed 0: 1.13
+    # -> 0.64 m), where its preset had to set 4 / 8 (RESULTS.md: tracker-ransac-width)
+    ransac_reference_width_px: int = 640
     ransac_probability: float = 0.99
     ransac_max_hypotheses: int = 100
     # with outlier rejection, a point matched but rejected this many tracked frames in a row
@@ -291,6 +297,11 @@ class TrackerConfig:
     def track_corner_level(self) -> int:
         """Lowest pyramid level whose FAST corners tracking searches."""
         return self.orb_track_min_level if self.matcher == "orb" else self.track_search_min_level
+
+    def ransac_pixels(self, width: int) -> tuple[float, float]:
+        """The RANSAC inlier and rescue thresholds in pixels of an image `width` wide."""
+        grow = max(1.0, width / self.ransac_reference_width_px)
+        return self.ransac_threshold_px * grow, self.ransac_rescue_px * grow
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], path: str | Path | None = None) -> TrackerConfig:

@@ -77,8 +77,8 @@ class FeatureRelocalizer:
         return ids, pts.desc[ids, 0]
 
     def _pnp(self, px: np.ndarray, ids: np.ndarray) -> np.ndarray | None:
-        """T_c_w from pixels px of map points ids by PnP in RANSAC (threshold
-        ransac_threshold_px); None with fewer than reloc_min_matches inliers."""
+        """T_c_w from pixels px of map points ids by PnP in RANSAC (the tracker's inlier
+        threshold for this image's width); None with fewer than reloc_min_matches inliers."""
         cfg = self.config
         if len(ids) < max(cfg.reloc_min_matches, MIN_PNP_POINTS):
             return None
@@ -90,7 +90,7 @@ class FeatureRelocalizer:
             return None
         ok, rvec, tvec, inliers = cv2.solvePnPRansac(
             world, normalised, np.eye(3), None, iterationsCount=PNP_ITERATIONS,
-            reprojectionError=cfg.ransac_threshold_px / self.camera.fx,
+            reprojectionError=cfg.ransac_pixels(self.camera.width)[0] / self.camera.fx,
             confidence=PNP_CONFIDENCE)
         if not ok or inliers is None or len(inliers) < cfg.reloc_min_matches:
             return None

@@ -55,6 +55,7 @@ class MapMatcher:
                  reprojector: Reprojector):
         self.camera, self.config, self.map, self.reprojector = camera, config, map_, reprojector
         self.focal = float(np.sqrt(camera.fx * camera.fy))
+        self.ransac_px, self.rescue_px = config.ransac_pixels(camera.width)
 
     def match(self, frame: Frame, timings: dict[str, float]) -> Matches:
         """Map points matched in frame (pose prior set) and the pose refined from them."""
@@ -104,7 +105,7 @@ class MapMatcher:
         T, H, sigma, err = fit(use)
         if rejecting:
             # rescue: outliers within a wider threshold of the inlier pose join them
-            use = self._errors(ids, obs, T) * self.focal < cfg.ransac_rescue_px
+            use = self._errors(ids, obs, T) * self.focal < self.rescue_px
             T, H, sigma, err = fit(use)
         m.T, m.H, m.sigma = T, H, sigma
         m.inlier[use] = err * self.focal < cfg.reprojection_inlier_px
@@ -186,7 +187,7 @@ class MapMatcher:
         inlier, tried = outlier_rejection.ransac(
             np.ascontiguousarray(self.map.points.pos_w[ids]), obs, 1.0 / 2.0 ** levels,
             frame.T_c_w, draw,
-            cfg.ransac_threshold_px / self.focal, cfg.ransac_probability,
+            self.ransac_px / self.focal, cfg.ransac_probability,
             cfg.ransac_max_hypotheses, T_all)
         return inlier, int(tried)
 
