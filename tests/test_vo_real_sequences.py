@@ -50,12 +50,13 @@ def test_tum_rpy_runs_through(data_dir):
 def test_kitti_with_defaults_keeps_one_map(data_dir):
     # the 80-degree turn at up to 3.7 deg/frame: keyframes come as the map's points leave the
     # grid cells (with inlier counts it was lost: 165/200 in 3 maps, 33.6 m); outlier
-    # rejection keeps wrong corners on the epipolar segments out (1.13 m; 2.79 m without, the
-    # C++ original 1.49-1.68 m)
+    # rejection keeps wrong corners on the epipolar segments out, at thresholds grown with the
+    # 1241-pixel width (0.64 m; 1.13 m at 2 / 4 px, 2.79 m without, the C++ original
+    # 1.49-1.68 m); issue 31 asks 1.0 m
     seq, est, qualities, segments = _track(data_dir / "kitti00_first200")
     assert len(qualities) == 200
     assert len(est) >= 198 and segments == 1
-    assert evaluate(seq.groundtruth, est, "sim3").ate_rmse_m <= 1.5
+    assert evaluate(seq.groundtruth, est, "sim3").ate_rmse_m <= 1.0
 
 
 def test_kitti_with_its_preset_meets_the_acceptance(data_dir):
