@@ -66,6 +66,21 @@ def test_a_touch_down_jolt_passes_while_descending_at_every_phase(speed):
     assert spiked >= 3  # the spike gate alone drops it at some phases
 
 
+def test_a_touch_down_is_counted_spike_or_not_and_a_steady_descent_is_not():
+    # the fusion takes a jolt for a touch-down (it re-references the barometer there): at
+    # LAND_SPEED every phase shows one, a vibrating descent none, a hover none
+    for phase in range(8):
+        gate = ImuGate(descent=lambda: 0.5)
+        feed(gate, _touch_down(0.5, phase))
+        assert gate.jolts >= 1, phase
+        hovering = ImuGate(descent=lambda: 0.0)
+        feed(hovering, _touch_down(0.5, phase))
+        assert hovering.jolts == 0
+    descending = ImuGate(descent=lambda: 0.5)
+    feed(descending, noisy(1000, seed=5))
+    assert descending.jolts == 0
+
+
 def test_a_sideways_spike_is_no_jolt():
     accels = noisy(100)
     accels[50] = HOVER + np.array([2 * SPIKE_FLOOR, 0.0, -SPIKE_FLOOR])

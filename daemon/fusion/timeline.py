@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 FUTURE_LIMIT_S = 5.0  # events stamped further ahead of the newest frame are wrong
 # events at one time are applied in this order whatever order they arrived in (the sensors
 # first, the frame that uses them last); same kinds keep their arrival order
-KIND_ORDER = {"attitude": 0, "imu": 1, "baro": 2, "range": 3, "frame": 4}
+KIND_ORDER = {"attitude": 0, "imu": 1, "touchdown": 2, "baro": 3, "range": 4, "frame": 5}
 
 
 @dataclass(order=True)
