@@ -11,11 +11,9 @@ from collections.abc import Iterator
 import cv2
 import numpy as np
 
-from calib.camera import CameraModel
-from vo.config import TrackerConfig
 from vo.frame import Frame
-from vo.map import CANDIDATE, CONVERGED, Map
-from vo.orb import VALID, describe
+from vo.map_matching import MapMatcher
+from vo.orb import VALID
 
 PNP_ITERATIONS = 200
 PNP_CONFIDENCE = 0.99
@@ -23,10 +21,10 @@ MIN_PNP_POINTS = 6  # below this solvePnPRansac has no minimal set to spare
 
 
 class FeatureRelocalizer:
-    """Poses for a lost frame from ORB matches to the map's points and PnP."""
+    """Poses for a lost frame from ORB matches to the matcher's map points and PnP."""
 
-    def __init__(self, camera: CameraModel, config: TrackerConfig, map_: Map):
-        self.camera, self.config, self.map = camera, config, map_
+    def __init__(self, matcher: MapMatcher):
+        self.matcher, self.config, self.map = matcher, matcher.config, matcher.map
         self._bf = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
 
     def poses(self, frame: Frame) -> Iterator[np.ndarray]:
@@ -55,21 +53,21 @@ class FeatureRelocalizer:
                 yield T
 
     def _frame_features(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
-        """Level-0 pixels and ORB descriptors of the frame's level-0 FAST corners."""
+        """Level-0 pixels and ORB descriptors of the frame's level-0 FAST corners (described
+        once per frame: Frame.orb)."""
         corners = frame.corners(self.config.fast_threshold, 0, 0)
-        lo, hi = corners.level_start[0], corners.level_start[1]
-        x, y = corners.x[lo:hi], corners.y[lo:hi]
-        desc, state = describe(frame.pyr.images[0], x, y)
-        ok = state == VALID
-        return np.column_stack((x[ok], y[ok])).astype(np.float64), desc[ok]
+        level0 = np.zeros(len(corners.x), dtype=bool)
+        level0[corners.level_start[0]:corners.level_start[1]] = True
+        frame.orb.fill(corners, level0)
+        desc, state = frame.orb.tables(corners)
+        ok = level0 & (state == VALID)
+        return np.column_stack((corners.x[ok], corners.y[ok])).astype(np.float64), desc[ok]
 
     def _map_points(self) -> tuple[np.ndarray, np.ndarray]:
-        """The points tracking matches (converged, and candidates updated
-        candidate_min_updates times) and their level-0 ORB descriptors at their host pixel
+        """The points tracking matches and their level-0 ORB descriptors at their host pixel
         (the map caches them: each point is described once)."""
         pts = self.map.points
-        ids = np.flatnonzero((pts.status == CONVERGED) | (
-            (pts.status == CANDIDATE) & (pts.n_updates >= self.config.candidate_min_updates)))
+        ids = self.matcher.usable_points()
         need = np.zeros((len(ids), pts.desc.shape[1]), dtype=bool)
         need[:, 0] = True
         self.map.describe_points(ids, need)
@@ -82,16 +80,10 @@ class FeatureRelocalizer:
         cfg = self.config
         if len(ids) < max(cfg.reloc_min_matches, MIN_PNP_POINTS):
             return None
-        bearings = self.camera.unproject(px)
-        ahead = bearings[:, 2] > 1e-6
-        normalised = bearings[ahead, :2] / bearings[ahead, 2:]
-        world = self.map.points.pos_w[ids[ahead]]
-        if len(world) < max(cfg.reloc_min_matches, MIN_PNP_POINTS):
-            return None
         ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-            world, normalised, np.eye(3), None, iterationsCount=PNP_ITERATIONS,
-            reprojectionError=cfg.ransac_pixels(self.camera.width)[0] / self.camera.fx,
-            confidence=PNP_CONFIDENCE)
+            self.map.points.pos_w[ids], self.matcher.normalised(px), np.eye(3), None,
+            iterationsCount=PNP_ITERATIONS, reprojectionError=self.matcher.ransac_px /
+            self.matcher.focal, confidence=PNP_CONFIDENCE)
         if not ok or inliers is None or len(inliers) < cfg.reloc_min_matches:
             return None
         T = np.eye(4)

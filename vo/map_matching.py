@@ -83,7 +83,7 @@ class MapMatcher:
         prior pose) are computed once for all the fits, and so is the fit to all matches (the
         pose without rejection, RANSAC's first hypothesis, its fallback)."""
         cfg, ids, levels = self.config, m.ids, m.levels
-        obs, whiten = self._normalised(m.uv), self._whitening(frame, ids)
+        obs, whiten = self.normalised(m.uv), self._whitening(frame, ids)
         whole = self._fit(frame, ids, obs, levels, whiten)  # needed on every path
 
         def fit(use: np.ndarray):
@@ -140,7 +140,7 @@ class MapMatcher:
 
     def optimize(self, frame: Frame, ids: np.ndarray, uv: np.ndarray, levels: np.ndarray):
         """Pose refinement from matches; returns (T_c_w, H, sigma, per-match error)."""
-        return self._fit(frame, ids, self._normalised(uv), levels, self._whitening(frame, ids))
+        return self._fit(frame, ids, self.normalised(uv), levels, self._whitening(frame, ids))
 
     def _whitening(self, frame: Frame, ids: np.ndarray) -> np.ndarray:
         """The matches' error whitening along their depth intervals at frame's pose."""
@@ -156,19 +156,24 @@ class MapMatcher:
                              self.config.pose_iterations, 0.5 / self.focal, frame.R_prior,
                              frame.prior_info)
 
-    def _normalised(self, uv: np.ndarray) -> np.ndarray:
+    def normalised(self, uv: np.ndarray) -> np.ndarray:
         """Undistorted normalised image-plane coordinates of level-0 pixels."""
         f = self.camera.unproject(uv)
         return np.ascontiguousarray(f[:, :2] / f[:, 2:])
 
-    def _reproject(self, frame: Frame):
+    def usable_points(self) -> np.ndarray:
+        """Ids of the points tracking matches: converged, and (track_candidates) candidates
+        updated candidate_min_updates times."""
         cfg = self.config
         pts = self.map.points
         usable = pts.status == CONVERGED
         if cfg.track_candidates:
             usable |= (pts.status == CANDIDATE) & (pts.n_updates >= cfg.candidate_min_updates)
-        idx = np.flatnonzero(usable)
-        search = pts.status[idx] == CANDIDATE
+        return np.flatnonzero(usable)
+
+    def _reproject(self, frame: Frame):
+        idx = self.usable_points()
+        search = self.map.points.status[idx] == CANDIDATE
         return self.reprojector.run(frame, self.map, idx, search)
 
     def _errors(self, ids: np.ndarray, obs: np.ndarray, T_c_w: np.ndarray) -> np.ndarray:

@@ -27,7 +27,7 @@ class Relocalizer:
     def __init__(self, camera: CameraModel, config: TrackerConfig, matcher: MapMatcher):
         self.camera, self.config, self.matcher = camera, config, matcher
         self.map = matcher.map
-        self.features = FeatureRelocalizer(camera, config, matcher.map)
+        self.features = FeatureRelocalizer(matcher)
 
     def find(self, frame: Frame, timings: dict[str, float], last: Frame | None = None
              ) -> tuple[Matches, np.ndarray] | None:
@@ -36,22 +36,26 @@ class Relocalizer:
         then the keyframes, newest first, by direct alignment; then (reloc_features) the
         keyframes by ORB matches and PnP. Returns the matches (the refined pose in them) and
         the pose's covariance; None when no reference does."""
-        cfg = self.config
         t0 = time.perf_counter()
         found = None
-        for ref, ids, px in self._references(last):
-            if self._align_to_reference(frame, ref, ids, px) < cfg.reloc_max_residual_ratio:
-                found = self._verified(frame)
-                if found is not None:
-                    break
-        if found is None and cfg.reloc_features:
-            for T in self.features.poses(frame):
-                frame.T_c_w = T
-                found = self._verified(frame)
-                if found is not None:
-                    break
+        for T in self._priors(frame, last):
+            frame.T_c_w = T
+            found = self._verified(frame)
+            if found is not None:
+                break
         timings["relocalize"] = ms_since(t0)
         return found
+
+    def _priors(self, frame: Frame, last: Frame | None):
+        """Pose priors for frame, in the order find tries them: direct alignment to each
+        reference that explains its patches well enough, then (reloc_features) PnP on ORB
+        matches."""
+        cfg = self.config
+        for ref, ids, px in self._references(last):
+            if self._align_to_reference(frame, ref, ids, px) < cfg.reloc_max_residual_ratio:
+                yield frame.T_c_w
+        if cfg.reloc_features:
+            yield from self.features.poses(frame)
 
     def _verified(self, frame: Frame) -> tuple[Matches, np.ndarray] | None:
         """The map's points matched from frame's pose prior, refined: with its covariance when
