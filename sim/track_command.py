@@ -187,6 +187,7 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
     add_relocalisations(report, sequence.groundtruth, estimate, np.array(log.segment),
                         np.array(log.relocalised, dtype=int))
     report["skipped"] = log.skipped
+    report["tracked_late"] = log.late
     report["first_pose_frame"] = log.first_pose_frame
     if alignment(method) == "se3":  # a depth method: its map starts on the first depth map
         report["first_depth_frame"] = tracker.first_depth_frame
@@ -226,6 +227,7 @@ class TrackLog:
     memory: list[dict] = field(default_factory=list)
     first_pose_s: float | None = None  # seconds from the start to the first pose
     first_pose_frame: int | None = None  # index of the first frame with a pose
+    late: int = 0  # poses given late (FrameResult.earlier), among `poses`
 
     def add(self, t: float, result) -> None:
         """One camera frame at time t: its FrameResult, or None when it was skipped."""
@@ -238,17 +240,26 @@ class TrackLog:
             self.frame_rows.append(frame_row(result))
         if result.quality != Quality.INITIALIZING:
             self.timings.append(result.timings)
+        earlier = getattr(result, "earlier", [])
+        for late in earlier:  # the frames a new map's initialiser waited through
+            self._add_pose(late.t, late.T_w_c, late.new_segment, False)
+        self.late += len(earlier)
         if result.has_pose:
-            self.times.append(t)
-            self.poses.append(result.T_w_c)
-            relocalised = getattr(result, "relocalized", False)
-            if relocalised:
-                self.relocalised.append(len(self.poses) - 1)
-            self.segment.append(len(self.segment) and self.segment[-1]
-                                + int(result.new_segment and not relocalised))
+            starts = result.new_segment and not (earlier and earlier[0].new_segment)
+            self._add_pose(t, result.T_w_c, starts, getattr(result, "relocalized", False))
             if self.first_pose_s is None:
                 self.first_pose_s = time.perf_counter() - self.started
                 self.first_pose_frame = self.n_frames - 1
+
+    def _add_pose(self, t: float, T_w_c: np.ndarray, new_segment: bool,
+                  relocalised: bool) -> None:
+        """A pose at time t; a new map starts a segment, a relocalised pose does not."""
+        self.times.append(t)
+        self.poses.append(T_w_c)
+        if relocalised:
+            self.relocalised.append(len(self.poses) - 1)
+        self.segment.append(len(self.segment) and self.segment[-1]
+                            + int(new_segment and not relocalised))
 
 
 def camera_rate() -> Callable[[float], None]:
@@ -350,11 +361,18 @@ def build_report(sequence, n_frames: int, estimate: Trajectory | None, segment: 
     return report
 
 
+def late_note(late: int) -> str:
+    """What `tracked` says of the poses given late (FrameResult.earlier)."""
+    return (f", {late} of them late (the frames a new map's initialiser waited through, posed "
+            "once the map existed; live: no pose)" if late else "")
+
+
 def format_report(r: dict) -> str:
     """Human-readable lines of a report."""
     lines = [f"sequence   {r['sequence']}",
              f"frames     {r['frames']}",
-             f"tracked    {r['tracked']} ({100.0 * r['tracked'] / max(r['frames'], 1):.1f}%)"]
+             f"tracked    {r['tracked']} ({100.0 * r['tracked'] / max(r['frames'], 1):.1f}%)"
+             + late_note(r.get("tracked_late", 0))]
     if r["ate_rmse_m"] is not None:
         label = {"sim3": "Sim3", "se3": "SE3"}.get(r["align"], r["align"])
         path = r.get("path_length_m")

@@ -76,6 +76,37 @@ def test_synthetic_flight_is_tracked_accurately(synthetic, threaded):
         assert "track" in r.timings and "pyramid" in r.timings
 
 
+@pytest.mark.parametrize("kept", [60, 3, 0])
+def test_the_frames_before_the_map_get_late_poses(synthetic, kept):
+    """The frames the initialiser waited through (the newest init_late_poses of them) get
+    poses in the map once it exists, with its first result: oldest first, the reference at the
+    map's origin, starting the segment, and as accurate as the frames tracked live."""
+    cam, frames, gt = synthetic
+    tracker = Tracker(cam, TrackerConfig(init_late_poses=kept))
+    try:
+        est, results = _run(tracker, frames)
+    finally:
+        tracker.close()
+    start = next(k for k, r in enumerate(results) if r.keyframe)
+    late = results[start].earlier
+    assert not [r for r in results[:start] if r.has_pose]  # it moves from its first frame
+    assert [r.t for r in late] == [t for t, _ in frames[max(start - kept, 0):start]]
+    assert all(not r.earlier for k, r in enumerate(results) if k != start)
+    if not late:
+        return
+    assert late[0].new_segment and not any(r.new_segment for r in late[1:])
+    if kept >= start:
+        assert np.allclose(late[0].T_w_c, np.eye(4), atol=1e-6)  # the reference
+    for r in late:
+        assert r.quality == "good" and np.all(np.linalg.eigvalsh(r.covariance) > 0)
+    live = evaluate(gt, est, "sim3")
+    poses = np.concatenate(([r.T_w_c for r in late], [r.T_w_c for r in results if r.has_pose]))
+    times = np.array([r.t for r in late] + [r.t for r in results if r.has_pose])
+    both = evaluate(gt, Trajectory.from_matrices(times, poses), "sim3")
+    assert both.ate_rmse_m < 1.2 * live.ate_rmse_m + 0.001
+    assert both.rot_rmse_deg < 0.5
+
+
 def test_sequential_runs_are_reproducible(synthetic):
     cam, frames, _ = synthetic
     poses = []

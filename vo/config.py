@@ -217,6 +217,9 @@ class TrackerConfig:
     init_ransac_px: float = 2.0
     init_min_inliers: int = 40
     init_map_depth: float = 1.0
+    # the frames the initialiser tracked before the map existed get poses in it once it does
+    # (FrameResult.earlier, vo.late_poses): at most this many, the newest (0 = none)
+    init_late_poses: int = 60
     # use the 5-point essential matrix instead when the homography explains fewer than this
     # fraction of its inliers (0 = homography only, as in the thesis text)
     init_homography_ratio: float = 0.8

@@ -76,6 +76,7 @@ LIMITS = {
     "init_ransac_px": PIXELS,
     "init_min_inliers": interval(5, 100_000),
     "init_map_depth": interval(above=0, high=1e6),
+    "init_late_poses": interval(0, 10_000),
     "init_homography_ratio": SHARE,
     "seed_a": interval(above=0, high=1e6),
     "seed_b": interval(above=0, high=1e6),

@@ -4,6 +4,7 @@ triangulation and scaling to a median depth."""
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 from enum import Enum
 
@@ -35,13 +36,25 @@ class InitOutcome(Enum):
 
 @dataclass
 class InitialMap:
-    """Two-view result: T_cur_ref, and per point its ref/cur level-0 pixels, ref bearing, depth."""
+    """Two-view result: T_cur_ref, and per point its ref/cur level-0 pixels, ref bearing, depth
+    and track (index into the reference's corners: TrackedView.ids)."""
 
     T_cur_ref: np.ndarray
     px_ref: np.ndarray
     px_cur: np.ndarray
     f_ref: np.ndarray
     depth: np.ndarray
+    track: np.ndarray
+
+
+@dataclass
+class TrackedView:
+    """A frame the initialiser saw, the reference first: its time, the tracks still followed
+    (indices into the reference's corners) and where it saw them (level-0 pixels)."""
+
+    t: float
+    ids: np.ndarray
+    px: np.ndarray
 
 
 def best_per_cell(x: np.ndarray, y: np.ndarray, score: np.ndarray, cell: int,
@@ -142,6 +155,9 @@ class Initializer:
         self.ref: Frame | None = None
         self.px_ref = np.zeros((0, 2), np.float32)
         self.px_cur = np.zeros((0, 2), np.float32)
+        self.track = np.zeros(0, dtype=np.int64)  # each track's index among the reference's
+        # the reference and the frames since, newest init_late_poses + 1 (vo.late_poses)
+        self.views: deque[TrackedView] = deque(maxlen=config.init_late_poses + 1)
 
     def set_reference(self, frame: Frame) -> bool:
         """Start from `frame` if it has enough corners; False otherwise."""
@@ -155,6 +171,9 @@ class Initializer:
         self.ref = frame
         self.px_ref = np.column_stack((x[keep], y[keep])).astype(np.float32)
         self.px_cur = self.px_ref.copy()
+        self.track = np.arange(len(keep))
+        self.views.clear()
+        self.views.append(TrackedView(frame.t, self.track, self.px_ref))
         return True
 
     def add(self, frame: Frame) -> InitialMap | InitOutcome:
@@ -165,7 +184,8 @@ class Initializer:
             winSize=LK_WINDOW, maxLevel=LK_LEVELS, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
             criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01))
         ok = status.ravel().astype(bool) & self.camera.in_image(nxt, 1.0)
-        self.px_ref, self.px_cur = self.px_ref[ok], nxt[ok]
+        self.px_ref, self.px_cur, self.track = self.px_ref[ok], nxt[ok], self.track[ok]
+        self.views.append(TrackedView(frame.t, self.track, self.px_cur))
         if len(self.px_ref) < self.config.init_min_tracked:
             return InitOutcome.RESTART
         shift = np.linalg.norm(self.px_cur - self.px_ref, axis=1)
@@ -227,4 +247,5 @@ class Initializer:
         scale = self.config.init_map_depth / float(np.median(depth[good]))
         T[:3, 3] *= scale
         return InitialMap(T, self.px_ref[good].astype(np.float64),
-                          self.px_cur[good].astype(np.float64), f_ref[good], depth[good] * scale)
+                          self.px_cur[good].astype(np.float64), f_ref[good], depth[good] * scale,
+                          self.track[good])

@@ -83,7 +83,7 @@ class MapMatcher:
         prior pose) are computed once for all the fits, and so is the fit to all matches (the
         pose without rejection, RANSAC's first hypothesis, its fallback)."""
         cfg, ids, levels = self.config, m.ids, m.levels
-        obs, whiten = self.normalised(m.uv), self._whitening(frame, ids)
+        obs, whiten = self.normalised(m.uv), self._whitening(frame.T_c_w, ids)
         whole = self._fit(frame, ids, obs, levels, whiten)  # needed on every path
 
         def fit(use: np.ndarray):
@@ -139,22 +139,35 @@ class MapMatcher:
         pts.delete(hopeless)
 
     def optimize(self, frame: Frame, ids: np.ndarray, uv: np.ndarray, levels: np.ndarray):
-        """Pose refinement from matches; returns (T_c_w, H, sigma, per-match error)."""
-        return self._fit(frame, ids, self.normalised(uv), levels, self._whitening(frame, ids))
+        """Pose refinement from matches from frame's pose (and its rotation prior); returns
+        (T_c_w, H, sigma, per-match error)."""
+        return self._fit(frame, ids, self.normalised(uv), levels,
+                         self._whitening(frame.T_c_w, ids))
 
-    def _whitening(self, frame: Frame, ids: np.ndarray) -> np.ndarray:
-        """The matches' error whitening along their depth intervals at frame's pose."""
+    def optimize_from(self, T_c_w: np.ndarray, ids: np.ndarray, uv: np.ndarray,
+                      levels: np.ndarray):
+        """optimize from the pose T_c_w, without a rotation prior."""
+        return self._solve(T_c_w, np.eye(3), 0.0, ids, self.normalised(uv), levels,
+                           self._whitening(T_c_w, ids))
+
+    def _whitening(self, T_c_w: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        """The matches' error whitening along their depth intervals at the pose T_c_w."""
         pts = self.map.points
-        return depth_whitening(frame.T_c_w, self.map.kf_T_c_w, pts.host[ids], pts.f[ids],
+        return depth_whitening(T_c_w, self.map.kf_T_c_w, pts.host[ids], pts.f[ids],
                                pts.rho[ids], pts.sigma[ids], 1.0 / self.focal)
 
     def _fit(self, frame: Frame, ids: np.ndarray, obs: np.ndarray, levels: np.ndarray,
              whiten: np.ndarray):
         """optimize from normalised coordinates obs and whitening already computed."""
+        return self._solve(frame.T_c_w, frame.R_prior, frame.prior_info, ids, obs, levels,
+                           whiten)
+
+    def _solve(self, T_c_w: np.ndarray, R_prior: np.ndarray, prior_info: float,
+               ids: np.ndarray, obs: np.ndarray, levels: np.ndarray, whiten: np.ndarray):
+        """The robust pose (vo.pose_optimizer) from T_c_w and the rotation prior."""
         return optimize_pose(np.ascontiguousarray(self.map.points.pos_w[ids]), obs,
-                             np.ascontiguousarray(levels, dtype=np.int64), whiten, frame.T_c_w,
-                             self.config.pose_iterations, 0.5 / self.focal, frame.R_prior,
-                             frame.prior_info)
+                             np.ascontiguousarray(levels, dtype=np.int64), whiten, T_c_w,
+                             self.config.pose_iterations, 0.5 / self.focal, R_prior, prior_info)
 
     def normalised(self, uv: np.ndarray) -> np.ndarray:
         """Undistorted normalised image-plane coordinates of level-0 pixels."""

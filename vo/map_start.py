@@ -28,6 +28,7 @@ class MapStart:
         self.config = config
         self.initializer = Initializer(camera, config)
         self.posed_ref: Frame | None = None  # the initialiser reference poses were given from
+        self.posed_t = -np.inf  # the time of the last frame given a pose from it
 
     def step(self, frame: Frame, timings: dict[str, float]) -> InitialMap | FrameResult:
         """Feed frame to the initialiser: the two views of a new map, or frame's result."""
@@ -53,7 +54,7 @@ class MapStart:
         T_w_c = np.eye(4)
         T_w_c[:3, :3] = R_cur_ref.T
         new_segment = self.posed_ref is not init.ref
-        self.posed_ref = init.ref
+        self.posed_ref, self.posed_t = init.ref, frame.t
         n = len(init.px_ref)
         cov = rotation_only_covariance(self.camera, init.px_ref, R_cur_ref, rms,
                                        self.config.init_ransac_px)

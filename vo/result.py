@@ -40,8 +40,12 @@ class FrameResult:
     increments its reset counter as on any discontinuity).
     `n_attempts` counts the map points matching tried (the quality ratio's denominator),
     `n_hypotheses` the RANSAC hypotheses outlier rejection fitted (0 without it),
-    `rotation_prior` how the caller's orientation was used. Everything
-    after `quality` is given by keyword.
+    `rotation_prior` how the caller's orientation was used. `earlier` holds late poses of
+    frames before this one, oldest first: on a new map's first result, the frames its
+    initialiser waited through (vo.late_poses), whose own results had none; when the first
+    of them has new_segment, the new segment starts there and this frame goes on with it.
+    A live consumer has sent those frames' results already and does not publish them.
+    Everything after `quality` is given by keyword.
     """
 
     t: float
@@ -57,6 +61,7 @@ class FrameResult:
     keyframe: bool = field(default=False, kw_only=True)
     n_hypotheses: int = field(default=0, kw_only=True)
     rotation_prior: PriorUse = field(default=PriorUse.NONE, kw_only=True)
+    earlier: list[FrameResult] = field(default_factory=list, kw_only=True)
 
     @property
     def has_pose(self) -> bool:

@@ -29,6 +29,7 @@ from vo.frame import Frame, check_image
 from vo.frame_tracking import FrameTracking
 from vo.initialization import Initializer, InitialMap, InitOutcome
 from vo.keyframe_policy import KeyframePolicy
+from vo.late_poses import late_poses
 from vo.map import Map
 from vo.map_matching import MapMatcher
 from vo.map_start import MapStart, build_depth_map, build_initial_map, init_step, seeds_for_map
@@ -199,17 +200,25 @@ class Tracker:
         found = self.start.step(frame, timings)
         if isinstance(found, FrameResult):
             return found, False
-        ref = self.start.initializer.ref
-        result = self._start_map(ref, frame, found)
         # the map's world is the reference camera, in which the poses so far were given
-        result.new_segment = self.start.posed_ref is not ref
+        posed = self.start.posed_ref is self.start.initializer.ref
+        result = self._start_map(self.start.initializer, frame, found,
+                                 self.start.posed_t if posed else -np.inf)
+        result.new_segment = not posed
         return result, True
 
-    def _start_map(self, ref: Frame, frame: Frame, views: InitialMap) -> FrameResult:
-        """A new map from the initialiser's two views; frame's result (a new segment)."""
-        n = build_initial_map(self.map, ref, frame, views, self.mapper.px_angle, self.config)
+    def _start_map(self, init: Initializer, frame: Frame, views: InitialMap,
+                   posed_until: float = -np.inf) -> FrameResult:
+        """A new map from the initialiser's two views; frame's result (a new segment), with
+        late poses for the frames the initialiser saw after `posed_until` (vo.late_poses)."""
+        cfg = self.config
+        n = build_initial_map(self.map, init.ref, frame, views, self.mapper.px_angle, cfg)
         self.state = TrackerState.TRACKING
-        return self.tracking.start(frame, n)
+        result = self.tracking.start(frame, n)
+        result.earlier = late_poses(init.views, views, init.ref.feat_point,
+                                    self.tracking.matcher, cfg, posed_until,
+                                    new_segment=posed_until == -np.inf)
+        return result
 
     def _start_from_depth(self, frame: Frame,
                           timings: dict[str, float]) -> tuple[FrameResult, bool]:
@@ -277,7 +286,7 @@ class Tracker:
                 frame.t - self.view_since < self.config.reinit_after_lost_s):
             return lost, False
         self._reset()
-        return self._start_map(init.ref, frame, outcome), True
+        return self._start_map(init, frame, outcome), True
 
     def _restart_from_depth(self, frame: Frame, timings: dict[str, float],
                             lost: FrameResult) -> tuple[FrameResult, bool]:

@@ -1,0 +1,56 @@
+"""Poses of the frames a two-view start waited through (issue 31: vamr's first ten frames).
+
+The initialiser (vo.initialization) follows its reference's corners through every frame until
+they have moved far enough apart to build a map from the reference and the current frame. Once
+that map exists, those tracks are its points, so each frame in between has matches to them: its
+pose is refined from them as tracking refines any frame's (vo.map_matching), oldest first, each
+from the one before. The poses are late: a live consumer sent those frames' results (no pose)
+long ago, so they come in the map's first result (FrameResult.earlier) for whoever records a
+trajectory, and a service does not publish them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+
+from vo.config import TrackerConfig
+from vo.initialization import InitialMap, TrackedView
+from vo.map_matching import MapMatcher
+from vo.pose_optimizer import pose_covariance
+from vo.result import FrameResult, Quality
+from vo.se3 import inv_se3, orthonormalized
+
+
+def late_poses(views: Iterable[TrackedView], start: InitialMap, point_ids: np.ndarray,
+               matcher: MapMatcher, config: TrackerConfig, after: float,
+               new_segment: bool) -> list[FrameResult]:
+    """Results with poses for the initialiser's `views` (the reference first, the map's second
+    keyframe last and left out) taken after time `after`; `start` is the two-view map whose
+    tracks became the map's points `point_ids`. A view whose tracks give fewer than
+    init_min_inliers inliers gets none. The first result starts a `new_segment` when asked."""
+    seen = list(views)[:-1]
+    results: list[FrameResult] = []
+    T_c_w = np.eye(4)  # the reference's: the map's world frame
+    for view in seen:
+        if view.t <= after:
+            continue
+        _, in_view, in_map = np.intersect1d(view.ids, start.track, assume_unique=True,
+                                            return_indices=True)
+        if len(in_map) < config.init_min_inliers:
+            continue
+        ids = point_ids[in_map]
+        T, H, sigma, err = matcher.optimize_from(T_c_w, ids, view.px[in_view].astype(np.float64),
+                                                 np.zeros(len(ids), dtype=np.int64))
+        inliers = int(np.sum(err * matcher.focal < config.reprojection_inlier_px))
+        if inliers < config.init_min_inliers:
+            continue
+        T_c_w = orthonormalized(T)
+        T_w_c = inv_se3(T_c_w)
+        results.append(FrameResult(view.t, T_w_c, Quality.GOOD,
+                                   covariance=pose_covariance(H, sigma, T_w_c),
+                                   n_matches=len(ids), n_attempts=len(ids), n_inliers=inliers))
+    if results:
+        results[0].new_segment = new_segment
+    return results
