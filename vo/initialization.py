@@ -176,9 +176,10 @@ class Initializer:
         self.views.append(TrackedView(frame.t, self.track, self.px_ref))
         return True
 
-    def add(self, frame: Frame) -> InitialMap | InitOutcome:
+    def add(self, frame: Frame, build: bool = True) -> InitialMap | InitOutcome:
         """Track into `frame`: an InitialMap when ready, else whether to keep tracking or to
-        replace the reference by this frame."""
+        replace the reference by this frame. Without `build` the tracks are only followed (no
+        map may be built yet: the two-view fit would be thrown away)."""
         nxt, status, _ = cv2.calcOpticalFlowPyrLK(
             self.ref.pyr.images[0], frame.pyr.images[0], self.px_ref, self.px_cur.copy(),
             winSize=LK_WINDOW, maxLevel=LK_LEVELS, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
@@ -189,7 +190,8 @@ class Initializer:
         if len(self.px_ref) < self.config.init_min_tracked:
             return InitOutcome.RESTART
         shift = np.linalg.norm(self.px_cur - self.px_ref, axis=1)
-        if np.mean(shift) < self.config.init_min_disparity_px or self.rotation_only():
+        if not build or np.mean(shift) < self.config.init_min_disparity_px or \
+                self.rotation_only():
             # a turn alone (a drone tilting as it starts to move) shifts the tracks without
             # parallax: its homography has no usable translation
             return InitOutcome.TRACKING

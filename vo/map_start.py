@@ -62,11 +62,12 @@ class MapStart:
                            n_attempts=n, n_inliers=n, new_segment=new_segment)
 
 
-def init_step(init: Initializer, frame: Frame,
-              timings: dict[str, float]) -> InitialMap | InitOutcome:
-    """Feed frame to an initialiser (restarting it from frame when needed); its outcome."""
+def init_step(init: Initializer, frame: Frame, timings: dict[str, float],
+              build: bool = True) -> InitialMap | InitOutcome:
+    """Feed frame to an initialiser (restarting it from frame when needed); its outcome
+    (`build`: see Initializer.add)."""
     t0 = time.perf_counter()
-    outcome = init.add(frame) if init.ref is not None else InitOutcome.RESTART
+    outcome = init.add(frame, build) if init.ref is not None else InitOutcome.RESTART
     if outcome is InitOutcome.RESTART:
         init.set_reference(frame)
     timings["init"] = ms_since(t0)

@@ -279,11 +279,13 @@ class Tracker:
         init = self.lost_init
         if init is None:
             return lost, False
-        outcome = init_step(init, frame, timings)
+        # the two views are fitted only once their map may replace the old one
+        due = (self.view_since is not None
+               and frame.t - self.view_since >= self.config.reinit_after_lost_s)
+        outcome = init_step(init, frame, timings, build=due)
         if outcome is not InitOutcome.RESTART and self.view_since is None:
             self.view_since = frame.t
-        if not isinstance(outcome, InitialMap) or (
-                frame.t - self.view_since < self.config.reinit_after_lost_s):
+        if not isinstance(outcome, InitialMap):
             return lost, False
         self._reset()
         return self._start_map(init, frame, outcome), True
