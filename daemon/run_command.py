@@ -14,6 +14,7 @@ import os
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
@@ -154,7 +155,9 @@ def tracker_factory(config: Config, camera: CameraModel,
         raise InputError(f"the tracker (vo) is not installed: {exc}") from None
     from daemon.fusion.scene import SceneTracker
 
-    tracker_config = TrackerConfig.from_dict(config.tracker)
+    # the service sends each frame's pose as it comes: poses given late (vo.late_poses) would
+    # only cost time on the map's first frame
+    tracker_config = replace(TrackerConfig.from_dict(config.tracker), init_late_poses=0)
 
     def make(frame: Frame) -> object:
         height, width = frame.image.shape[:2]

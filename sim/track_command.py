@@ -225,8 +225,8 @@ class TrackLog:
     timings: list[dict[str, float]] = field(default_factory=list)
     qualities: list[str] = field(default_factory=list)
     memory: list[dict] = field(default_factory=list)
-    first_pose_s: float | None = None  # seconds from the start to the first pose
-    first_pose_frame: int | None = None  # index of the first frame with a pose
+    first_pose_s: float | None = None  # seconds from the start to the first pose (not late)
+    first_pose_frame: int | None = None  # index of the first frame with a pose of its own
     late: int = 0  # poses given late (FrameResult.earlier), among `poses`
 
     def add(self, t: float, result) -> None:

@@ -107,6 +107,35 @@ def test_the_frames_before_the_map_get_late_poses(synthetic, kept):
     assert both.rot_rmse_deg < 0.5
 
 
+def test_a_new_map_after_a_loss_gets_late_poses_from_its_initialiser(synthetic, data_dir):
+    """Over a scene the map never saw, relocalisation fails and a new map replaces the old one
+    reinit_after_lost_s after the view became usable (the initialiser fits its two views only
+    then); the frames the initialiser followed get late poses in the new map, starting its
+    segment after the loss."""
+    cam, frames, _ = synthetic
+    other = load_texture(data_dir, "graf1.png")
+    poses = [_flight(i) for i in range(40, N_SYNTH)]
+    unseen = [(40 / 30.0 + k / 30.0, render_plane(other, cam, T)) for k, T in enumerate(poses)]
+    wait_s = 1.0
+    tracker = Tracker(cam, TrackerConfig(reinit_after_lost_s=wait_s))
+    try:
+        assert [tracker.process(img, t) for t, img in frames[:40]][-1].has_pose
+        later = [tracker.process(img, t) for t, img in unseen]
+    finally:
+        tracker.close()
+    k = next(k for k, r in enumerate(later) if r.new_segment)
+    start = later[k]
+    assert not start.relocalized and start.keyframe and "init" in later[k - 1].timings
+    lost = next(j for j, r in enumerate(later) if r.quality == "lost")
+    assert not any(r.has_pose for r in later[lost:k])
+    late = start.earlier
+    assert late and late[0].new_segment and not any(r.new_segment for r in late[1:])
+    times = [r.t for r in late]
+    assert times == sorted(times) and later[lost].t <= times[0] and times[-1] < start.t
+    assert "late_poses" in start.timings
+    assert start.t - later[lost].t >= wait_s
+
+
 def test_sequential_runs_are_reproducible(synthetic):
     cam, frames, _ = synthetic
     poses = []

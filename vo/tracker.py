@@ -202,22 +202,24 @@ class Tracker:
             return found, False
         # the map's world is the reference camera, in which the poses so far were given
         posed = self.start.posed_ref is self.start.initializer.ref
-        result = self._start_map(self.start.initializer, frame, found,
-                                 self.start.posed_t if posed else -np.inf)
-        result.new_segment = not posed
+        result = self._start_map(self.start.initializer, frame, found, timings,
+                                 self.start.posed_t if posed else None)
         return result, True
 
     def _start_map(self, init: Initializer, frame: Frame, views: InitialMap,
-                   posed_until: float = -np.inf) -> FrameResult:
-        """A new map from the initialiser's two views; frame's result (a new segment), with
-        late poses for the frames the initialiser saw after `posed_until` (vo.late_poses)."""
+                   timings: dict[str, float], posed_until: float | None = None) -> FrameResult:
+        """A new map from the initialiser's two views; frame's result: a new segment unless
+        poses were given from the same reference (until `posed_until`), with late poses for
+        the frames the initialiser saw since (vo.late_poses)."""
         cfg = self.config
         n = build_initial_map(self.map, init.ref, frame, views, self.mapper.px_angle, cfg)
         self.state = TrackerState.TRACKING
         result = self.tracking.start(frame, n)
-        result.earlier = late_poses(init.views, views, init.ref.feat_point,
-                                    self.tracking.matcher, cfg, posed_until,
-                                    new_segment=posed_until == -np.inf)
+        result.new_segment = posed_until is None
+        t0 = time.perf_counter()
+        result.earlier = late_poses(list(init.views), views, init.ref.feat_point,
+                                    self.tracking.matcher, cfg, posed_until)
+        timings["late_poses"] = ms_since(t0)
         return result
 
     def _start_from_depth(self, frame: Frame,
@@ -279,16 +281,17 @@ class Tracker:
         init = self.lost_init
         if init is None:
             return lost, False
-        # the two views are fitted only once their map may replace the old one
-        due = (self.view_since is not None
-               and frame.t - self.view_since >= self.config.reinit_after_lost_s)
-        outcome = init_step(init, frame, timings, build=due)
+        # the two views are fitted only once their map may replace the old one (the view
+        # usable since this frame if not before)
+        since = frame.t if self.view_since is None else self.view_since
+        outcome = init_step(init, frame, timings,
+                            build=frame.t - since >= self.config.reinit_after_lost_s)
         if outcome is not InitOutcome.RESTART and self.view_since is None:
             self.view_since = frame.t
         if not isinstance(outcome, InitialMap):
             return lost, False
         self._reset()
-        return self._start_map(init, frame, outcome), True
+        return self._start_map(init, frame, outcome, timings), True
 
     def _restart_from_depth(self, frame: Frame, timings: dict[str, float],
                             lost: FrameResult) -> tuple[FrameResult, bool]:
