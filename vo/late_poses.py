@@ -6,7 +6,7 @@ that map exists, those tracks are its points, so each frame in between has match
 pose is refined from them as tracking refines any frame's (vo.map_matching), newest first, each
 from the one after it. The poses are late: a live consumer sent those frames' results (no pose)
 long ago, so they come in the map's first result (FrameResult.earlier) for whoever records a
-trajectory, and a service does not publish them.
+trajectory; the service does not compute them.
 """
 
 from __future__ import annotations
