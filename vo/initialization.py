@@ -49,8 +49,9 @@ class InitialMap:
 
 @dataclass
 class TrackedView:
-    """A frame the initialiser saw, the reference first: its time, the tracks still followed
-    (indices into the reference's corners) and where it saw them (level-0 pixels)."""
+    """A frame the initialiser saw (the reference, or one tracked into since): its time, the
+    tracks still followed (indices into the reference's corners) and where it saw them
+    (level-0 pixels)."""
 
     t: float
     ids: np.ndarray
