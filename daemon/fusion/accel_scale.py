@@ -77,12 +77,13 @@ class _Window:
     def noise(self, density: float) -> np.ndarray:
         """With the offset and v0 eliminated (M: the weights with the window's basis projected
         out): the share of sum w m^2 over the three axes that the map's white noise gives,
-        3 sum_i M_ii var_i, and the variance that white IMU noise of `density`
+        3 sum_i M_ii var_i; that share per unit^2 of a noise floor at every frame, 3 sum_i M_ii;
+        and the variance that white IMU noise of `density`
         gives sum w m P, sum_axes m' M C M m (C: the covariance of doubly integrated white noise
         at the frames' times, s^2 (3 t - s) / 6 for s <= t; correlated from frame to frame, so
         the residuals do not show it)."""
         if not self._usable():
-            return np.zeros(2)
+            return np.zeros(3)
         tau, w = np.array(self.taus), np.array(self.weights)
         s, t = np.minimum.outer(tau, tau), np.maximum.outer(tau, tau)
         C = density**2 * s * s * (3.0 * t - s) / 6.0
@@ -91,7 +92,7 @@ class _Window:
         M = np.diag(w) - WB @ np.linalg.solve(B.T @ WB, WB.T)
         Mm = M @ np.array(self.ms)  # (frames, axis)
         return np.array([3.0 * float(np.diag(M) @ np.array(self.map_vars)),
-                         float(np.sum(Mm * (C @ Mm)))])
+                         3.0 * float(np.sum(np.diag(M))), float(np.sum(Mm * (C @ Mm)))])
 
 
 @dataclass
@@ -99,17 +100,17 @@ class AccelScale:
     """The IMU's double integral and the map's position since the current window started."""
 
     accel_noise: float  # m/s^2/sqrt(Hz): the IMU's displacement error grows as t^1.5 / sqrt(3)
-    position_std_m: float  # the tracker's, metres
+    position_std_m: float  # the tracker's least noise, metres (in units at the fit's own scale)
     start_t: float | None = None
     start_p: np.ndarray = field(default_factory=lambda: np.zeros(3))
     v: np.ndarray = field(default_factory=lambda: np.zeros(3))
     p: np.ndarray = field(default_factory=lambda: np.zeros(3))
     window: _Window = field(default_factory=_Window)
     closed: np.ndarray = field(default_factory=lambda: np.zeros((3, 3, 3)))  # summed normal()s
-    closed_noise: np.ndarray = field(default_factory=lambda: np.zeros(2))  # windows' noise()
+    closed_noise: np.ndarray = field(default_factory=lambda: np.zeros(3))  # windows' noise()
     density: float = 0.0  # the IMU noise the current window is weighted by
-    windows: int = 0
-    frames: int = 0
+    windows: int = 0  # closed windows in the sums (a hover's are left out)
+    frames: int = 0  # frames in the sums and the running window
 
     def copy(self) -> AccelScale:
         """An independent copy (the filter's snapshots)."""
@@ -140,11 +141,12 @@ class AccelScale:
         camera's (the filter's TIME_OFFSET): the camera at t saw the vehicle where the IMU
         says it is `time_offset` later. Unpaired, the first 0.1 s of a 2 m leg gave a scale
         5x too small (the map moved before the IMU's stamps said so). `map_var`: the variance
-        of the map's position noise (units^2, per axis; the tracker's covariance)."""
+        of the map's position noise (units^2, per axis; the tracker's covariance), on top of
+        `position_std_m`, which the fit converts at its own scale: converted at the filter's,
+        the floor was 271 units^2 at lift-off (a runaway scale of 0.0003 m/unit) and that one
+        frame's share kept the fit silent for the whole flight (closed loop, no rangefinder)."""
         if self.start_t is not None and t - self.start_t > WINDOW_S:
-            self.closed += self.window.normal()
-            self.closed_noise += self.window.noise(self.density)
-            self.windows += 1
+            self._close_window()
             self.start_t = None
         if self.start_t is None:
             self.start_t, self.start_p = t, np.asarray(p_w, float).copy()
@@ -156,6 +158,36 @@ class AccelScale:
         self.window.add(tau, R_n_w @ (np.asarray(p_w, float) - self.start_p),
                         self.p + time_offset * self.v, 1.0 / sigma2, map_var)
         self.frames += 1
+
+    def _close_window(self) -> None:
+        """Add the running window to the sums, unless the map's motion in it is less than
+        MIN_SIGNAL_TO_NOISE times its own noise share (at the scale the sums give with it):
+        such a window (a hover) adds a share known only to its size and no information. Summed,
+        a 30 s hover's windows took the share from 6 % to 30 % of what was left and moved the
+        fit from 0.150 to 0.186 m/unit for a 0.135 map (closed loop, no rangefinder, seed 5)."""
+        normal, noise = self.window.normal(), self.window.noise(self.density)
+        solved = self._solve(self.closed + normal, self.closed_noise + noise)
+        share = noise[0] + (0.0 if solved is None
+                            else noise[1] * (self.position_std_m / solved[0]) ** 2)
+        if float(normal[:, 2, 2].sum()) > MIN_SIGNAL_TO_NOISE * share:
+            self.closed, self.closed_noise = self.closed + normal, self.closed_noise + noise
+            self.windows += 1
+        else:
+            self.frames -= self.window.frames
+
+    def _solve(self, sums: np.ndarray, noise: np.ndarray) -> tuple[float, float, float] | None:
+        """(m/unit, the map noise's share, the map's motion) from the sums (axis, y, y), y = (P,
+        t^2, m), with the bias eliminated; None without positive motion left apart from a
+        bias."""
+        shape = sums[:, 1, 1]  # the bias's t^2, per axis
+        if not (np.all(shape > 0) and sums[:, 2, 2].sum() > 0):
+            return None
+        signal = float(sums[:, 2, 2].sum() - np.sum(sums[:, 2, 1] ** 2 / shape))
+        product = float(sums[:, 2, 0].sum() - np.sum(sums[:, 2, 1] * sums[:, 1, 0] / shape))
+        m_per_unit = self._scale(signal - noise[0], product, noise[1] * self.position_std_m**2)
+        if m_per_unit is None:
+            return None
+        return m_per_unit, noise[0] + noise[1] * (self.position_std_m / m_per_unit) ** 2, signal
 
     def fit(self) -> tuple[float, float] | None:
         """(ln(scale), its std), or None while the map's motion so far does not give a positive
@@ -170,24 +202,31 @@ class AccelScale:
         the ground then a climb gave 2.39 m/unit at 1.5 % for a map of 1.61 (real-time replay);
         measuring the noise from the positions instead made a leg after a hover give 1.42 at
         14 % for a 2.2 map, and the autopilot's EKF failsafed (closed loop, seed 8)."""
-        sums = self.closed + self.window.normal()  # (axis, y, y), y = (P, t^2, m)
-        shape = sums[:, 1, 1]  # the bias's t^2, per axis
-        if not (np.all(shape > 0) and sums[:, 2, 2].sum() > 0):
+        sums = self.closed + self.window.normal()
+        noise = self.closed_noise + self.window.noise(self.density)
+        solved = self._solve(sums, noise)
+        if solved is None:
             return None
-        # the bias eliminated: what is left of the map's motion, and of its product with the IMU
-        signal = float(sums[:, 2, 2].sum() - np.sum(sums[:, 2, 1] ** 2 / shape))
-        product = float(sums[:, 2, 0].sum() - np.sum(sums[:, 2, 1] * sums[:, 1, 0] / shape))
-        map_share, imu_spread = self.closed_noise + self.window.noise(self.density)
+        m_per_unit, map_share, signal = solved
         informative = signal - map_share  # corrected least squares
-        if not (informative > MIN_SIGNAL_TO_NOISE * map_share and informative > 0
-                and product > 0):
+        if not informative > MIN_SIGNAL_TO_NOISE * map_share:
             return None
-        m_per_unit = product / informative
         dof = 3 * (self.frames - 2 * (self.windows + 1)) - 4  # 3 axes; offset, v0 per window
+        shape = sums[:, 1, 1]
         bias = (sums[:, 1, 0] - m_per_unit * sums[:, 2, 1]) / shape  # b/2 per axis
         residual = float(sums[:, 0, 0].sum() - m_per_unit * sums[:, 2, 0].sum()
                          - bias @ sums[:, 1, 0])  # the weights are per m^2
         ratio = max(residual, 0.0) / dof if dof > 0 else 1.0
-        var = (max(ratio, 1.0) + imu_spread / informative) / informative
-        var += (map_share / informative) ** 2  # the share is a model's: known only to its size
+        var = (max(ratio, 1.0) + noise[2] / informative) / informative  # (m/unit)^2
+        # the share is a model's, known only to its size: up to share / informative of the slope
+        var += (m_per_unit * map_share / informative) ** 2
         return float(np.log(m_per_unit)), float(np.sqrt(var) / m_per_unit)
+
+    @staticmethod
+    def _scale(signal: float, product: float, floor_m2: float) -> float | None:
+        """The slope s (m/unit) with product = s (signal - floor_m2 / s^2): the map's noise
+        floor, in metres, is floor_m2 / s^2 units^2 at the scale being fitted; the positive
+        root of signal s^2 - product s - floor_m2 = 0 (None: no positive motion left)."""
+        if not (signal > 0 and product > 0):
+            return None
+        return (product + np.sqrt(product**2 + 4.0 * signal * floor_m2)) / (2.0 * signal)

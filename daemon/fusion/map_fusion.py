@@ -197,7 +197,7 @@ class MapFusion:
         f.motion.add_frame(t, frame.p_w, f.R_nom,
                            float(np.sqrt(np.mean(np.square(self.imu_density())))),
                            float(f.x[TIME_OFFSET]),
-                           float(np.trace(frame.cov[:3, :3])) / 3.0 + m.vo_position_floor(f))
+                           float(np.trace(frame.cov[:3, :3])) / 3.0)
         fit = f.motion.fit()
         if att is None or fit is None or not fit[1] <= cfg.coarse_scale_std:
             return
