@@ -136,9 +136,6 @@ class FusionConfig:
     # the barometer has seen this much climb (climb_scale.py), not from the wide prior's
     # linearised fixes
     climb_scale_min_m: float = 1.0
-    # how far the barometer's climb can be off whatever its noise: rotor wash reads high once
-    # airborne, ground effect low near the ground (ArduPilot SITL's autotest 1 m; logs 0.4-11 m)
-    baro_climb_bias_m: float = 1.0
     # outlier rejection: chi-square gate per measurement (99.9 % for 1, 3, 6 dof: 10.8, 16.3, 22.5)
     gate_chi2_1dof: float = 10.8
     gate_chi2_3dof: float = 16.3

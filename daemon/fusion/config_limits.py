@@ -73,7 +73,6 @@ LIMITS = {
     "baro_std_m": STD_M,
     "baro_walk_m_per_sqrt_s": interval(0, 100),
     "climb_scale_min_m": interval(above=0, high=1000),
-    "baro_climb_bias_m": interval(0, 100),
     "gate_chi2_1dof": CHI2,
     "gate_chi2_3dof": CHI2,
     "gate_chi2_6dof": CHI2,

@@ -175,7 +175,7 @@ class MapFusion:
         std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
         if att is None or (std <= cfg.coarse_scale_std and self.imu_fresh(t)):
             return
-        fit = f.climb.fit(cfg.climb_scale_min_m, cfg.baro_std_m, cfg.baro_climb_bias_m)
+        fit = f.climb.fit(cfg.climb_scale_min_m, cfg.baro_std_m)
         if fit is not None:  # the map's own scale wanders over the climb (its walk, halved)
             fit = (fit[0], float(np.hypot(fit[1], 0.5 * cfg.scale_walk_climb_per_sqrt_m
                                           * np.sqrt(f.climb.climb_m(fit[0])))))
