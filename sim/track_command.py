@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import os
 import resource
 import time
 from collections.abc import Callable
@@ -17,6 +16,7 @@ import numpy as np
 
 from sdvl.errors import InputError
 from sim.replay.progress import progress_bar
+from sim.shared_data import shared_data_dir
 from sim.track_methods import METHODS, alignment, build_tracker, check_method, load_config
 from sim.track_relocs import add_relocalisations, format_relocalisations
 from sim.trajectory import Trajectory, write_tum
@@ -84,8 +84,7 @@ def resolve_sequence(name: str, size: tuple[int, int] | None = None, seed: int |
         return synthetic_sequence(name, size=size, seed=seed or 0, textures=textures or "auto")
     path = Path(name)
     if not path.exists():
-        data = Path(os.environ.get("SDVL_DATA", Path(__file__).resolve().parents[2]
-                                   / "shared" / "data"))
+        data = shared_data_dir()
         if (data / name).exists():
             path = data / name
     return open_sequence(path)

@@ -27,6 +27,7 @@ import numpy as np
 
 from sdvl.errors import InputError
 from sim.disk_cache import cache_root
+from sim.shared_data import shared_data_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 SIDES = ("before", "after")
@@ -114,8 +115,7 @@ def track_once(root: Path, spec: tuple[str, str | None], max_frames: int | None,
         argv += ["--config", config]
     if max_frames:
         argv += ["--max-frames", str(max_frames)]
-    data = os.environ.get("SDVL_DATA", str(ROOT.parent / "shared" / "data"))
-    env = dict(os.environ, PYTHONPATH=str(root), SDVL_DATA=data)
+    env = dict(os.environ, PYTHONPATH=str(root), SDVL_DATA=str(shared_data_dir()))
     done = subprocess.run(argv, cwd=root, env=env, capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise InputError(f"sdvl track {seq} failed in {root}: {done.stderr.strip()[-500:]}")

@@ -8,8 +8,9 @@ from pathlib import Path
 
 import pytest
 
-DATA_DIR = Path(os.environ.get("SDVL_DATA", Path(__file__).resolve().parents[1].parent
-                               / "shared" / "data"))
+from sim.shared_data import shared_data_dir
+
+DATA_DIR = shared_data_dir()
 REAL_SEQUENCES = ("tum_fr1_rpy", "vamr_ex01_checkerboard736", "kitti00_first200")
 
 

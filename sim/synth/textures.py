@@ -10,7 +10,6 @@ consistent across levels.
 from __future__ import annotations
 
 import functools
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +18,7 @@ import numpy as np
 
 from sdvl.errors import InputError
 from sim import disk_cache
+from sim.shared_data import shared_data_dir
 
 TEXTURE_SUFFIXES = (".jpg", ".jpeg", ".png")
 MIN_LEVEL_SIZE = 4
@@ -127,9 +127,7 @@ def checker_texture(squares: int = 8, square_texels: int = 16) -> np.ndarray:
 
 def default_texture_dir() -> Path:
     """The shared data textures folder ($SDVL_DATA/textures or ../shared/data/textures)."""
-    data = os.environ.get("SDVL_DATA")
-    root = Path(data) if data else Path(__file__).resolve().parents[3] / "shared" / "data"
-    return root / "textures"
+    return shared_data_dir() / "textures"
 
 
 def _power_of_two_below(n: int) -> int:
