@@ -166,11 +166,12 @@ class AccelScale:
         a 30 s hover's windows took the share from 6 % to 30 % of what was left and moved the
         fit from 0.150 to 0.186 m/unit for a 0.135 map (closed loop, no rangefinder, seed 5)."""
         normal, noise = self.window.normal(), self.window.noise(self.density)
-        solved = self._solve(self.closed + normal, self.closed_noise + noise)
+        sums, noises = self.closed + normal, self.closed_noise + noise
+        solved = self._solve(sums, noises)
         share = noise[0] + (0.0 if solved is None
                             else noise[1] * (self.position_std_m / solved[0]) ** 2)
         if float(normal[:, 2, 2].sum()) > MIN_SIGNAL_TO_NOISE * share:
-            self.closed, self.closed_noise = self.closed + normal, self.closed_noise + noise
+            self.closed, self.closed_noise = sums, noises
             self.windows += 1
         else:
             self.frames -= self.window.frames
