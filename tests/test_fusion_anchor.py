@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from daemon.fusion import measurements as m
 from daemon.fusion.config import FusionConfig
 from daemon.fusion.state import ANCHOR, LOG_SCALE, POS, THETA, TIME_OFFSET, VEL, NavFilter
 
@@ -41,6 +42,44 @@ def test_a_map_of_unknown_scale_is_hung_from_the_vehicle_the_imu_carries() -> No
         f.reanchor(np.array([0.05 * step, 0.0, 0.0]), np.eye(3))
         np.testing.assert_allclose(f.x[ANCHOR], f.x[POS] + f.lever + f.x[TIME_OFFSET] * f.x[VEL])
     assert np.all(np.diag(f.P[ANCHOR, ANCHOR]) <= np.diag(f.P[POS, POS]) + 1e-3)
+
+
+@pytest.mark.parametrize("from_start", [True, False])
+def test_a_rescale_the_imu_carries_keeps_what_the_map_saw_from_its_start(from_start) -> None:
+    """A take-off on the wide prior: the IMU carried the vehicle 3 m up but missed 0.35 m of
+    sideways drift (its dead reckoning a metre either way); the map saw it. At the climb's
+    scale the vehicle goes where the map puts it from the segment's start, not where dead
+    reckoning left it."""
+    scale = 0.12
+    f = NavFilter(FusionConfig())
+    f.start(0.0, 0.01)
+    f.start_segment(np.zeros(3), np.eye(3), np.eye(3), 0.0)  # on the ground, the wide prior
+    f.accel = np.zeros(3)  # an IMU has been integrated
+    f.x[POS] = [0.0, 0.0, -3.0]
+    f.P[POS, POS] += np.eye(3)
+    p_w = np.array([0.35, 0.0, -3.0]) / scale
+    f.reanchor(p_w, np.eye(3))  # hung from the vehicle on the way up
+    assert f.imu_carries()
+    if from_start:
+        assert m.update_from_start(f, p_w, np.eye(3), np.log(scale), 0.05)
+    f.rescale(p_w, np.eye(3), np.log(scale), 0.05)
+    assert (abs(f.x[0] - 0.35) < 0.03) == from_start
+    assert abs(f.x[2] + 3.0) < 0.05
+
+
+@pytest.mark.parametrize("scale_std", [None, 0.05])
+def test_a_realignment_on_the_wide_prior_keeps_where_the_segment_started(scale_std) -> None:
+    """Re-aligned while its scale is the wide prior, the map disagreed with the vehicle for
+    that scale: its start still holds. With a scale given, the map itself moved: it starts
+    again where it is re-hung."""
+    f = NavFilter(FusionConfig())
+    f.start(0.0, 0.01)
+    f.start_segment(np.zeros(3), np.eye(3), np.eye(3), 0.0, scale_std=scale_std)
+    started = f.segment_start
+    f.x[POS] = [0.0, 0.0, -3.0]
+    f.start_segment(np.array([0.0, 0.0, -25.0]), np.eye(3), np.eye(3), 0.0,
+                    scale_std=scale_std, same_map=True)
+    assert (f.segment_start is started) == (scale_std is None)
 
 
 def test_a_climb_lets_the_map_wander_sideways_only() -> None:

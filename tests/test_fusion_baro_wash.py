@@ -43,3 +43,30 @@ def test_without_a_rangefinder_the_barometer_still_gives_the_height():
     est = hover(with_range=False)
     assert est.filter.has_baro
     assert -est.filter.x[2] > HEIGHT + 0.1  # the wash is in it: nothing else knows better
+
+
+def test_near_the_ground_the_barometer_is_not_fused():
+    """On its gear and in the first metres of a climb the rotors' ground effect moves the
+    barometer by metres (ArduPilot PR #32472: -5 to -11 m at spool-up): below
+    baro_ground_effect_height_m it does not pull the height; above, its offset is referenced
+    at the filter's height and it is fused again."""
+    est = FusionEstimator(FusionConfig(), MountingConfig())
+    est.filter.start(0.0, 0.01, 0.0)
+    est.maps.ground_z = 0.0  # it stood at NED z 0
+    seq = 0
+
+    def baro(t: float, altitude: float) -> None:
+        nonlocal seq
+        est.attitude.add(Attitude(t, np.eye(3), np.zeros(3)))
+        est._apply(Event(t, 0, seq, "baro", Baro(t, altitude, "SCALED_PRESSURE")))
+        seq += 1
+
+    for k in range(1, 41):
+        baro(0.05 * k, -4.0)  # 4 m low under the spooled-up rotors
+    assert not est.filter.has_baro
+    assert abs(est.filter.x[2]) < 0.5
+    est.filter.x[2] = -HEIGHT  # where the climb took it
+    for k in range(41, 61):
+        baro(0.05 * k, HEIGHT + WASH)
+    assert est.filter.has_baro
+    assert abs(-est.filter.x[2] - HEIGHT) < 0.1  # the offset took the wash in

@@ -12,8 +12,12 @@ from flight_helpers import Flight
 
 from sim.autopilot.airframe import GRAVITY, Airframe
 from sim.autopilot.barometer import Barometer, BaroSpec
-from sim.autopilot.dynamics import Dynamics
+from sim.autopilot.dynamics import Dynamics, FlyingVehicle
+from sim.autopilot.flight_params import flight_specs
+from sim.autopilot.flight_sensors import FlightSensors
 from sim.autopilot.imu import ACCEL_LSB, ACCEL_RANGE, Imu, ImuSpec
+from sim.autopilot.param_store import ParamStore
+from sim.autopilot.params import Release, ardupilot_specs
 from sim.autopilot.rangefinder import Rangefinder, RangefinderSpec
 
 AT_REST = np.array([0.0, 0.0, -GRAVITY])
@@ -108,3 +112,12 @@ def test_no_rangefinder_no_distance_sensor():
     flight.fly(2.0)
     assert flight.link.of("DISTANCE_SENSOR") == []
     assert flight.model.params.get("RNGFND1_TYPE") == 0
+
+
+def test_the_vehicles_barometer_is_the_one_its_dynamics_name():
+    """`sdvl fly --baro-ground-effect M` flies a barometer with another ground effect: the
+    flight's sensors read the one the vehicle's Dynamics carry."""
+    vehicle = FlyingVehicle(Dynamics(baro=BaroSpec(ground_effect_m=3.0)))
+    params = ParamStore({**ardupilot_specs(Release.MASTER_2025), **flight_specs()}, {})
+    sensors = FlightSensors(vehicle, params, seed=0)
+    assert sensors.baro.spec.ground_effect_m == 3.0

@@ -131,11 +131,19 @@ class FusionConfig:
     use_baro: bool = True
     baro_std_m: float = 0.3
     baro_walk_m_per_sqrt_s: float = 0.02
+    # below this height above where the vehicle stood, the barometer is not fused: its rotors'
+    # ground effect moves it by metres (ArduPilot PR #32472: -5 to -11 m at spool-up on flown
+    # airframes; SITL's SIM_BARO_GEFF_M decays to nothing at 2 m), which no noise figure
+    # covers and the climb would take for the scale; the IMU and the map carry the height
+    # there, and the barometer's offset is referenced again above it (0: fused everywhere)
+    baro_ground_effect_height_m: float = 2.0
     # while the filter does not know the scale (no rangefinder, no IMU fix yet), it is taken
     # from a least-squares fit of the tracker's height against the barometer's altitude once
-    # the barometer has seen this much climb (climb_scale.py), not from the wide prior's
-    # linearised fixes
-    climb_scale_min_m: float = 1.0
+    # the barometer has seen this much climb above the ground effect (climb_scale.py), not
+    # from the wide prior's linearised fixes. A 3 m take-off leaves about 1 m above it: at
+    # 1.0 the fit came as LOITER began, and moving the vehicle to where the map saw it go
+    # then moved it in the hold (0.33-0.35 m; the fit's std says how short the climb was)
+    climb_scale_min_m: float = 0.5
     # outlier rejection: chi-square gate per measurement (99.9 % for 1, 3, 6 dof: 10.8, 16.3, 22.5)
     gate_chi2_1dof: float = 10.8
     gate_chi2_3dof: float = 16.3

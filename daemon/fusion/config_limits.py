@@ -72,6 +72,7 @@ LIMITS = {
     "scene_height_std_fraction": interval(above=0, high=1),
     "baro_std_m": STD_M,
     "baro_walk_m_per_sqrt_s": interval(0, 100),
+    "baro_ground_effect_height_m": interval(0, 100),
     "climb_scale_min_m": interval(above=0, high=1000),
     "gate_chi2_1dof": CHI2,
     "gate_chi2_3dof": CHI2,

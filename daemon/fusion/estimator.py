@@ -371,9 +371,10 @@ class FusionEstimator:
         """The barometer's altitude, only while no rangefinder measures the height: in flight
         the rotors' wash moves it by up to a metre with the throttle (why ArduPilot has
         BARO1_THST_SCALE; 0.77 m in a hover in sim/autopilot), a bias no white noise covers
-        that would pull the height the rangefinder knows to centimetres. Its offset is
-        re-referenced when it is needed again."""
-        if self.readings.fresh_range(t) is None:
+        that would pull the height the rangefinder knows to centimetres; nor near the ground,
+        where the ground effect moves it by metres (baro_ground_effect_height_m). Its offset
+        is re-referenced when it is needed again."""
+        if self.readings.fresh_range(t) is None and not self.maps.in_ground_effect():
             m.update_baro(self.filter, altitude)
         else:
             self.filter.has_baro = False

@@ -86,6 +86,13 @@ class MapFusion:
         self.imu_density = imu_density  # the IMU stream's measured noise, per body axis
         self.ground_z: float | None = None  # NED z where the vehicle stood at the start
 
+    def in_ground_effect(self) -> bool:
+        """Whether the filter's height above where the vehicle stood at the start is below
+        baro_ground_effect_height_m, where the rotors' ground effect moves the barometer
+        (False when that level is unknown: the filter started moving)."""
+        return (self.ground_z is not None
+                and self.ground_z - float(self.filter.x[2]) < self.cfg.baro_ground_effect_height_m)
+
     def fuse(self, t: float, frame: FrameInput) -> None:
         """Fuse a tracker frame at the filter's time t: a new map starts (its anchor cloned from
         the vehicle, its scale prior), else the pose and the autopilot's attitude update the
@@ -152,8 +159,18 @@ class MapFusion:
             return
         log.info("fusion: scale %.3g m/unit from the rangefinder's first reading",
                  np.exp(log_scale))
-        f.rescale(frame.p_w, att.R_n_b, log_scale, self.cfg.range_scale_prior_std,
-                  ScaleSource.GIVEN)
+        self._rescale(frame.p_w, att.R_n_b, log_scale, self.cfg.range_scale_prior_std,
+                      ScaleSource.GIVEN)
+
+    def _rescale(self, p_w: np.ndarray, R_n_b: np.ndarray, log_scale: float, std: float,
+                 source: ScaleSource = ScaleSource.FIT) -> None:
+        """The filter takes a new scale (NavFilter.rescale); one whose IMU carries the vehicle
+        first places it where the map puts it from the segment's start at that scale, as far
+        as the two agree with their uncertainties (measurements.update_from_start)."""
+        f = self.filter
+        if f.imu_carries():
+            m.update_from_start(f, p_w, R_n_b, log_scale, std)
+        f.rescale(p_w, R_n_b, log_scale, std, source)
 
     def _range_scale(self, t: float, units: float | None) -> float | None:
         """ln(scale) from a fresh rangefinder reading over the camera's height above the ground
@@ -164,12 +181,13 @@ class MapFusion:
         return float(np.log(distance / units))
 
     def _climb_scale(self, t: float, frame: FrameInput, att: object) -> None:
-        """Pair the tracker's height with the barometer's; while the filter does not know the
-        scale from elsewhere (std above coarse_scale_std, or no IMU) and has not converged, take
-        it from their fit over the climb when that is surer (climb_scale.py)."""
+        """Pair the tracker's height with the barometer's above the ground effect; while the
+        filter does not know the scale from elsewhere (std above coarse_scale_std, or no IMU)
+        and has not converged, take it from their fit over the climb when that is surer
+        (climb_scale.py)."""
         f, cfg = self.filter, self.cfg
         if (self.readings.baro is None or abs(t - self.readings.baro[0]) > RANGE_FRESH_S
-                or f.converged):
+                or f.converged or self.in_ground_effect()):
             return  # once converged the fit is not used: pairing on would grow without bound
         f.climb.add(float((f.R_nom @ frame.p_w)[2]), *self.readings.baro)  # map's own origin
         std = float(np.sqrt(f.P[LOG_SCALE, LOG_SCALE]))
@@ -182,7 +200,7 @@ class MapFusion:
         if fit is not None and fit[1] < std:
             log.info("fusion: scale %.3g m/unit from the climb (+-%.1f%%)", np.exp(fit[0]),
                      100 * fit[1])
-            f.rescale(frame.p_w, att.R_n_b, *fit)
+            self._rescale(frame.p_w, att.R_n_b, *fit)
 
     def _accel_scale(self, t: float, frame: FrameInput, att: object) -> None:
         """Pair the map's position with the IMU's double integral; until the map converges,
@@ -206,7 +224,7 @@ class MapFusion:
         if surer or abs(fit[0] - f.x[LOG_SCALE]) > 3.0 * np.hypot(fit[1], std):
             log.info("fusion: scale %.3g m/unit from the IMU (+-%.1f%%), the filter had %.3g "
                      "(+-%.1f%%)", np.exp(fit[0]), 100 * fit[1], f.scale, 100 * std)
-            f.rescale(frame.p_w, att.R_n_b, *fit)
+            self._rescale(frame.p_w, att.R_n_b, *fit)
 
     def _scene_height(self, t: float, frame: FrameInput, R_n_b: np.ndarray) -> None:
         """Fuse the map's height above the ground (its matched points' median depth along the

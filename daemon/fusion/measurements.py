@@ -221,3 +221,24 @@ def update_rest(f: NavFilter) -> bool:
     H[:, VEL] = np.eye(3)
     R = np.eye(3) * f.cfg.rest_velocity_std**2
     return gated_update(f, np.zeros(3), f.x[VEL].copy(), H, R, f.cfg.gate_chi2_3dof)
+
+
+def update_from_start(f: NavFilter, p_w: np.ndarray, R_n_b: np.ndarray, log_scale: float,
+                      scale_std: float) -> bool:
+    """The camera where the map puts it at a new scale (ln, std), measured from where its
+    segment started: the displacement since then at that scale, as uncertain as the scale,
+    the alignment and the map's drift make it, plus the start's own uncertainty. Before a
+    rescale the IMU carries (the map is then hung from the vehicle): the map saw what dead
+    reckoning on an unknown scale did not, a take-off's sideways drift of 0.35 m that stayed
+    in the position for the whole flight (closed loop, no rangefinder, seed 0)."""
+    if f.segment_start is None:
+        return False
+    camera0, cov0, p_w0 = f.segment_start
+    moved = float(np.exp(log_scale)) * (f.R_nom @ (np.asarray(p_w, float) - p_w0))
+    turn = skew(moved)  # the alignment's error turns the displacement
+    R = (cov0 + np.outer(moved, moved) * scale_std**2 + turn @ f.P[THETA, THETA] @ turn.T
+         + np.eye(3) * (f.cfg.vo_position_std_m**2
+                        + f.cfg.vo_drift_m_per_sqrt_m**2 * float(np.linalg.norm(moved))))
+    camera, J = f.camera(R_n_b)
+    return gated_update(f, camera0 + moved, camera, J, R, f.cfg.gate_chi2_3dof)
+

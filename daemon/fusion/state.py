@@ -87,6 +87,9 @@ class NavFilter:
         self.has_ground = False
         self.has_baro = False
         self.segment = -1  # id of the map segment the anchor belongs to
+        # where the segment was hung when it started: (camera in N, its covariance, the map's
+        # point there), before any re-hanging on dead reckoning (measurements.update_from_start)
+        self.segment_start: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.realigns = 0  # segments restarted because the tracker's poses stopped fitting
         self.converged = False  # scale and heading of this segment passed the alignment gate
         self.scale_source = ScaleSource.PRIOR
@@ -125,13 +128,14 @@ class NavFilter:
         return (self.t, self.x.copy(), self.P.copy(), self.R_nom.copy(), self.p_w0.copy(),
                 self.has_ground, self.has_baro, dict(self.rejections), self.segment,
                 self.accel, self.t_accel, self.realigns, self.converged, self.scale_source,
-                self.scene_ne, self.climb.copy(), self.motion.copy(), list(self.vo_disagreement))
+                self.scene_ne, self.climb.copy(), self.motion.copy(), list(self.vo_disagreement),
+                self.segment_start)
 
     def restore(self, snap: tuple) -> None:
         """Go back to a snapshot."""
         (self.t, x, P, R_nom, p_w0, self.has_ground, self.has_baro, rejections, self.segment,
          self.accel, self.t_accel, self.realigns, self.converged, self.scale_source,
-         self.scene_ne, climb, motion, disagreement) = snap
+         self.scene_ne, climb, motion, disagreement, self.segment_start) = snap
         self.vo_disagreement = list(disagreement)
         self.x, self.P = x.copy(), P.copy()
         self.climb, self.motion = climb.copy(), motion.copy()
@@ -176,6 +180,10 @@ class NavFilter:
         self.motion = self._accel_scale()
         x, P = self.x, self.P
         self._hang_map(p_w, R_n_b)
+        if not (same_map and self.scale_source is ScaleSource.PRIOR):
+            # re-aligned on the wide prior, the map disagreed with the vehicle for its unknown
+            # scale, not a move of its own: where it started still holds
+            self.segment_start = (x[ANCHOR].copy(), P[ANCHOR, ANCHOR].copy(), self.p_w0.copy())
         x[LOG_SCALE] = log_scale
         x[THETA] = 0.0
         if scale_std is None:
@@ -244,7 +252,7 @@ class NavFilter:
         carry the new scale's error. Dead reckoning at the old scale is dropped, and so is the
         barometer's offset, which was fitted to it (the next reading re-references it)."""
         x, P = self.x, self.P
-        if self._imu_carries():
+        if self.imu_carries():
             self._rescale_map(p_w, R_n_b, log_scale, scale_std, source)
             return
         ratio = float(np.exp(log_scale - x[LOG_SCALE]))
@@ -273,7 +281,7 @@ class NavFilter:
         self.has_baro = False
         self.scale_source = source
 
-    def _imu_carries(self) -> bool:
+    def imu_carries(self) -> bool:
         """Whether the IMU (with the barometer and rangefinder) carries the vehicle, not the
         map: the scale too unsure to move it (above nav_scale_std) and an IMU to integrate."""
         return (self.accel is not None
@@ -281,7 +289,7 @@ class NavFilter:
 
     def _rescale_map(self, p_w: np.ndarray, R_n_b: np.ndarray, log_scale: float,
                      scale_std: float, source: ScaleSource) -> None:
-        """rescale() of a filter whose IMU carries the vehicle (_imu_carries): it stays, and
+        """rescale() of a filter whose IMU carries the vehicle (imu_carries): it stays, and
         the map is hung from where it is, at the new scale. The anchor had followed the old
         scale's wandering (re-anchored at it; forget_scale drops the correlation): put where
         the map said at the new scale, a vehicle 40 m into a level flight jumped 6.8 m at a
@@ -326,7 +334,7 @@ class NavFilter:
         vehicle, the map is hung from it instead: followed at a scale that is not known, the
         chain took the prior's variance at every move and the anchor's std grew to 1.6e6 m
         in 66 s (past float32 later: an ODOMETRY pymavlink could not pack)."""
-        if self._imu_carries():
+        if self.imu_carries():
             self._hang_map(p_w, R_n_b)
             return
         x, P = self.x, self.P

@@ -18,6 +18,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from sim.autopilot.airframe import Airframe
+from sim.autopilot.barometer import BaroSpec
 from sim.autopilot.multicopter import Multicopter
 from sim.autopilot.rangefinder import RangefinderSpec
 from sim.autopilot.wind import Wind, WindField
@@ -34,7 +35,8 @@ class Dynamics:
     yaw_deg, the ground at NED z = ground_down_m (the body origin is the airframe's gear height
     above it). `terrain` optionally replaces the flat ground for the rangefinder (a synthetic
     world's ray caster); the physics always stands on the flat ground. `rangefinder` None:
-    the vehicle has none (no DISTANCE_SENSOR); `seed` draws its sensors' errors and noise."""
+    the vehicle has none (no DISTANCE_SENSOR); `baro` its barometer (the rotors' wash and
+    ground effect on it); `seed` draws its sensors' errors and noise."""
 
     north_m: float = 0.0
     east_m: float = 0.0
@@ -44,6 +46,7 @@ class Dynamics:
     wind: Wind | None = None
     terrain: RangeFunction | None = None
     rangefinder: RangefinderSpec | None = field(default_factory=RangefinderSpec)
+    baro: BaroSpec = field(default_factory=BaroSpec)
     seed: int = 0
 
     def hardware_params(self) -> dict[str, float]:

@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from sim.autopilot.ahrs_error import AhrsError
 from sim.autopilot.airframe import GRAVITY
-from sim.autopilot.barometer import Barometer, BaroSpec
+from sim.autopilot.barometer import Barometer
 from sim.autopilot.dynamics import FlyingVehicle
 from sim.autopilot.imu import Imu, ImuSpec
 from sim.autopilot.param_store import ParamStore
@@ -33,7 +33,7 @@ class FlightSensors:
         self.imu = Imu(ImuSpec(), rng, LOOP_HZ, params.get("INS_ACCEL_FILTER"),
                        params.get("INS_GYRO_FILTER"))
         self.ahrs = AhrsError(self.imu.accel_bias, rng)
-        self.baro = Barometer(BaroSpec(), rng)
+        self.baro = Barometer(vehicle.dynamics.baro, rng)
         spec = vehicle.dynamics.rangefinder
         self.rangefinder = Rangefinder(spec, rng) if spec is not None else None
         self.attitude = self.ahrs.attitude(vehicle.body.rotation)

@@ -17,6 +17,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega
 from scipy.spatial.transform import Rotation
 
+from sim.autopilot.barometer import BaroSpec
 from sim.autopilot.dynamics import Dynamics
 from sim.autopilot.options import configured_options
 from sim.autopilot.simulator import make_model
@@ -57,10 +58,10 @@ class AutopilotSide:
 
     def __init__(self, mission: Mission, world: FlightWorld, seed: int, timing: Timing,
                  without: tuple[str, ...] = (), now: float = 0.0,
-                 on_step: Callable[[str], None] | None = None):
+                 on_step: Callable[[str], None] | None = None, baro: BaroSpec | None = None):
         self.now = now
-        options = configured_options(by_parameter=True, seed=seed,
-                                     dynamics=Dynamics(terrain=world.range))
+        options = configured_options(by_parameter=True, seed=seed, dynamics=Dynamics(
+            terrain=world.range, baro=baro or BaroSpec()))
         self.model = make_model(options, None, now)
         self.hidden = {name for kind in without for name in SENSOR_STREAMS[kind]}
         self.gcs = GroundStation(lambda data: self._from_gcs.put(self.now, data))

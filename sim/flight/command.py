@@ -15,6 +15,7 @@ from pathlib import Path
 from daemon.config import Config, load_config, replace
 from daemon.run_command import setup_logging
 from sdvl.errors import InputError
+from sim.autopilot.barometer import BaroSpec
 from sim.flight.flight_run import FlightRun, Timing
 from sim.flight.frames_csv import write_flight_frames
 from sim.flight.loop import ClosedLoop
@@ -48,6 +49,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "virtual clock makes the table the same; default 1)")
     parser.add_argument("--without", action="append", default=[], choices=sorted(SENSOR_STREAMS),
                         help="the autopilot does not stream this sensor to us (repeatable)")
+    parser.add_argument("--baro-ground-effect", type=float, default=None, metavar="M",
+                        help="how low the simulated barometer reads at the ground under hover "
+                             f"thrust (metres; default {BaroSpec().ground_effect_m:g}, ArduPilot "
+                             "SITL's autotest; flown airframes 0.4 to 11)")
     parser.add_argument("--depth", action="store_true",
                         help="RGB-D: the world's depth camera (the preset's sensor model, "
                              "sim/synth/depth_sensor.py) feeds the service (camera.depth)")
@@ -90,8 +95,10 @@ def fly(mission: Mission, config: Config, seed: int, args: argparse.Namespace) -
         return fly_realtime(mission, config, seed, size, without, args.load, prefix)
     timing = Timing() if args.latency_ms is None else Timing(
         capture_to_send_s=args.latency_ms / 1e3)
+    baro = (None if args.baro_ground_effect is None
+            else BaroSpec(ground_effect_m=args.baro_ground_effect))
     return ClosedLoop(mission, config, seed, size, without, timing,
-                      on_step=prefix and step_printer(prefix)).run()
+                      on_step=prefix and step_printer(prefix), baro=baro).run()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -99,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
     if args.jobs < 1 or (args.jobs > 1 and args.realtime):
         raise InputError("--jobs N flies N virtual-clock flights at once (N >= 1); a --realtime "
                          "flight measures the machine, so it flies alone")
+    if args.baro_ground_effect is not None and (args.realtime or args.baro_ground_effect < 0):
+        raise InputError("--baro-ground-effect is the virtual-clock loop's barometer (>= 0 m)")
     if args.load and not args.realtime:
         raise InputError("--load loads the machine for a --realtime flight; add --realtime")
     if args.latency_ms is not None and (args.realtime or args.latency_ms < 0):
