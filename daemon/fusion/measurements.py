@@ -241,4 +241,3 @@ def update_from_start(f: NavFilter, p_w: np.ndarray, R_n_b: np.ndarray, log_scal
                         + f.cfg.vo_drift_m_per_sqrt_m**2 * float(np.linalg.norm(moved))))
     camera, J = f.camera(R_n_b)
     return gated_update(f, camera0 + moved, camera, J, R, f.cfg.gate_chi2_3dof)
-
