@@ -168,8 +168,7 @@ class AccelScale:
         normal, noise = self.window.normal(), self.window.noise(self.density)
         sums, noises = self.closed + normal, self.closed_noise + noise
         solved = self._solve(sums, noises)
-        share = noise[0] + (0.0 if solved is None
-                            else noise[1] * (self.position_std_m / solved[0]) ** 2)
+        share = noise[0] if solved is None else self._share(noise, solved[0])
         if float(normal[:, 2, 2].sum()) > MIN_SIGNAL_TO_NOISE * share:
             self.closed, self.closed_noise = sums, noises
             self.windows += 1
@@ -188,7 +187,12 @@ class AccelScale:
         m_per_unit = self._scale(signal - noise[0], product, noise[1] * self.position_std_m**2)
         if m_per_unit is None:
             return None
-        return m_per_unit, noise[0] + noise[1] * (self.position_std_m / m_per_unit) ** 2, signal
+        return m_per_unit, self._share(noise, m_per_unit), signal
+
+    def _share(self, noise: np.ndarray, m_per_unit: float) -> float:
+        """The map noise's share of the sums (units^2): the tracker's covariance plus the
+        position_std_m floor converted at the scale m_per_unit."""
+        return float(noise[0] + noise[1] * (self.position_std_m / m_per_unit) ** 2)
 
     def fit(self) -> tuple[float, float] | None:
         """(ln(scale), its std), or None while the map's motion so far does not give a positive

@@ -5,7 +5,8 @@ Without an IMU or a rangefinder the filter starts from the wide scale prior, and
 linearised fixes land far off, so the barometer's climb then fails its gate. A straight-line fit
 of -altitude = scale * z + c, with z the tracker's camera height in its own units along N's down
 axis, needs no linearisation; once the fitted climb reaches `climb_scale_min_m` it gives the
-scale to a few percent.
+scale, with a std from the barometer's noise or the fit's residuals over the climb's spread
+(map_fusion pairs readings only above the ground effect, baro_ground_effect_height_m).
 """
 
 from __future__ import annotations
