@@ -54,6 +54,20 @@ def test_the_first_rows_of_subsets_do_not_depend_on_how_many_are_drawn():
     assert np.array_equal(orj.random_subsets(40, 4, 7), whole[:4])
 
 
+def test_a_hypothesis_is_scored_only_while_it_can_beat_the_best():
+    """count_within counts the matches within the threshold, or says -1 as soon as the rest
+    could not bring it to `enough`."""
+    rng = np.random.default_rng(4)
+    pos_w = np.column_stack([rng.uniform(-1, 1, 50), rng.uniform(-1, 1, 50),
+                             rng.uniform(2, 4, 50)])
+    obs = pos_w[:, :2] / pos_w[:, 2:] + rng.normal(0, 0.004, (50, 2))
+    thr2 = 0.004 ** 2
+    within = int((orj.squared_errors(pos_w, obs, np.eye(4)) < thr2).sum())
+    assert 0 < within < 50
+    assert orj.count_within(pos_w, obs, np.eye(4), thr2, within) == within
+    assert orj.count_within(pos_w, obs, np.eye(4), thr2, within + 1) == -1
+
+
 def test_ransac_matches_the_reference_and_finds_the_outliers():
     rng = np.random.default_rng(1)
     n = 80

@@ -15,7 +15,7 @@ import numba
 import numpy as np
 
 from vo.normal_equations import solve_spd
-from vo.se3 import compose, exp_se3, plane_jacobian, transform
+from vo.se3 import compose_into, exp_se3_into, plane_jacobian, transform
 
 SUBSET = 5
 HYPOTHESIS_ITERATIONS = 5
@@ -39,13 +39,16 @@ def squared_errors(pos_w, obs, T_c_w):
 
 
 @numba.njit(cache=True, nogil=True)
-def fit_subset(pos_w, obs, scale, subset, T_prior, iterations):
-    """T_prior updated by plain Gauss-Newton on the matches `subset` only."""
-    T = T_prior.copy()
-    J = np.zeros((2, 6))
+def fit_subset(pos_w, obs, scale, subset, T_prior, iterations, work):
+    """T_prior updated by plain Gauss-Newton on the matches `subset` only, in work[0] (`work`:
+    the buffers of fit_buffers, reused over a RANSAC's hypotheses)."""
+    T, step, stepped, H, b, J = work
+    T[:, :] = T_prior
     for _ in range(iterations):
-        H = 1e-12 * np.eye(6)
-        b = np.zeros(6)
+        H[:, :] = 0.0
+        for a in range(6):
+            H[a, a] = 1e-12
+        b[:] = 0.0
         for i in subset:
             X, Y, Z = transform(T, pos_w[i, 0], pos_w[i, 1], pos_w[i, 2])
             if Z <= 1e-9:
@@ -56,15 +59,47 @@ def fit_subset(pos_w, obs, scale, subset, T_prior, iterations):
             ey = (obs[i, 1] - Y / Z) * s
             for a in range(6):
                 b[a] += s * (J[0, a] * ex + J[1, a] * ey)
-                for q in range(6):
+                for q in range(a, 6):  # the upper triangle, mirrored below
                     H[a, q] += s * s * (J[0, a] * J[0, q] + J[1, a] * J[1, q])
+        for a in range(1, 6):
+            for q in range(a):
+                H[a, q] = H[q, a]
         det, xi = solve_spd(H, b)
         if det == 0.0:  # a degenerate subset: no fit
             break
-        T = compose(exp_se3(xi), T)
+        exp_se3_into(xi, step)
+        compose_into(step, T, stepped)
+        T[:, :] = stepped
         if np.sqrt(xi @ xi) < 1e-12:
             break
     return T
+
+
+@numba.njit(cache=True, nogil=True)
+def fit_buffers():
+    """The work buffers of fit_subset: pose, step, stepped pose, normal matrix and vector,
+    Jacobian."""
+    return (np.empty((4, 4)), np.empty((4, 4)), np.empty((4, 4)), np.empty((6, 6)),
+            np.empty(6), np.zeros((2, 6)))
+
+
+@numba.njit(cache=True, nogil=True)
+def count_within(pos_w, obs, T_c_w, thr2, enough):
+    """How many matches reproject within sqrt(thr2) (normalised plane) at T_c_w, or -1 as
+    soon as fewer than `enough` can (a hypothesis that cannot beat the best is not scored to
+    the end)."""
+    n = pos_w.shape[0]
+    count = 0
+    for i in range(n):
+        X, Y, Z = transform(T_c_w, pos_w[i, 0], pos_w[i, 1], pos_w[i, 2])
+        if Z > 1e-9:
+            ex = obs[i, 0] - X / Z
+            ey = obs[i, 1] - Y / Z
+            if ex * ex + ey * ey < thr2:
+                count += 1
+        if count + n - 1 - i < enough:
+            return -1
+    return count
 
 
 @numba.njit(cache=True, nogil=True)
@@ -98,13 +133,13 @@ def _try_subsets(pos_w, obs, scale, T_prior, subsets, thr2, p, cap, best):
     best_count = best.sum()
     needed = subsets.shape[0]
     tried = 0
+    work = fit_buffers()
     while tried < needed:
-        T = fit_subset(pos_w, obs, scale, subsets[tried], T_prior, HYPOTHESIS_ITERATIONS)
+        T = fit_subset(pos_w, obs, scale, subsets[tried], T_prior, HYPOTHESIS_ITERATIONS, work)
         tried += 1
-        inlier = squared_errors(pos_w, obs, T) < thr2
-        count = inlier.sum()
+        count = count_within(pos_w, obs, T, thr2, best_count + 1)
         if count > best_count:
-            best, best_count = inlier, count
+            best, best_count = squared_errors(pos_w, obs, T) < thr2, count
             needed = min(needed, hypotheses_needed(count, n, p, cap))
     return best, tried
 
