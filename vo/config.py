@@ -31,10 +31,6 @@ class TrackerConfig:
     align_max_level: int = 4
     align_min_level: int = 2
     align_iterations: int = 30
-    # Gauss-Newton at a level stops once a step moves the patches by less than this (pixels of
-    # the level): half of a level's iterations came after steps of a thousandth of a pixel
-    # (RESULTS.md: tracker-align-stop)
-    align_stop_px: float = 0.003
     # Tukey-weighted intensity residuals (vo.sparse_align), else plain least squares (6.10):
     # a few patches that no longer fit their reference pulled the pose (RESULTS.md:
     # tracker-align-robust)
@@ -58,10 +54,6 @@ class TrackerConfig:
     # not wait for full-resolution FAST; mapping searches from level 0
     track_search_min_level: int = 1
     pose_iterations: int = 10
-    # the refinement stops once a step moves the points by less than this (image pixels): 3 of
-    # its 10 iterations moved them by a hundredth of a pixel or more (median over vamr's fits;
-    # RESULTS.md: tracker-align-stop)
-    pose_stop_px: float = 0.003
     reprojection_inlier_px: float = 2.0
     constant_velocity: bool = True
     # the camera's turn between frames from the caller (the autopilot's attitude, rotation

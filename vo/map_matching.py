@@ -167,8 +167,7 @@ class MapMatcher:
         """The robust pose (vo.pose_optimizer) from T_c_w and the rotation prior."""
         return optimize_pose(np.ascontiguousarray(self.map.points.pos_w[ids]), obs,
                              np.ascontiguousarray(levels, dtype=np.int64), whiten, T_c_w,
-                             self.config.pose_iterations, 0.5 / self.focal, R_prior, prior_info,
-                             self.config.pose_stop_px / self.focal)
+                             self.config.pose_iterations, 0.5 / self.focal, R_prior, prior_info)
 
     def normalised(self, uv: np.ndarray) -> np.ndarray:
         """Undistorted normalised image-plane coordinates of level-0 pixels."""

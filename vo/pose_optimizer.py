@@ -69,10 +69,9 @@ def _residuals(pos_w, obs, scale, whiten, T_c_w, err):
 
 @numba.njit(cache=True, nogil=True)
 def optimize_pose(pos_w, obs, level, whiten, T_c_w, iterations, sigma_floor, R_prior,
-                  prior_info, stop=0.0):
+                  prior_info):
     """Refine T_c_w from world points pos_w observed at normalised coordinates obs, errors
-    whitened by the 2x2 matrices `whiten` (see depth_whitening), for at most `iterations`
-    steps, until one moves the points by less than `stop` (normalised image plane).
+    whitened by the 2x2 matrices `whiten` (see depth_whitening).
 
     Returns (T_c_w, H, sigma, err_norm): the normal matrix of the last iteration (twist in
     the camera frame, left perturbation), the robust residual scale and per-match errors.
@@ -88,7 +87,6 @@ def optimize_pose(pos_w, obs, level, whiten, T_c_w, iterations, sigma_floor, R_p
     Jw = np.zeros((2, 6))
     H = np.zeros((6, 6))
     _residuals(pos_w, obs, scale, whiten, T, err)
-    per_unit = 1.0 / _nearest_depth(pos_w, T)  # image motion per unit the camera moves
     sigma = sigma_floor
     for _ in range(iterations):
         # robust scale re-estimated each iteration (MAD), so outliers drop out as T improves
@@ -124,24 +122,11 @@ def optimize_pose(pos_w, obs, level, whiten, T_c_w, iterations, sigma_floor, R_p
             break
         T = compose(exp_se3(xi), T)
         _residuals(pos_w, obs, scale, whiten, T, err)
-        moved = (per_unit * np.sqrt(xi[0] ** 2 + xi[1] ** 2 + xi[2] ** 2)
-                 + np.sqrt(xi[3] ** 2 + xi[4] ** 2 + xi[5] ** 2))
-        if moved < stop or np.sqrt(xi @ xi) < 1e-10:
+        if np.sqrt(xi @ xi) < 1e-10:
             break
     for i in range(n):
         norms[i] = np.sqrt(err[i, 0] ** 2 + err[i, 1] ** 2)
     return T, H, sigma, norms
-
-
-@numba.njit(cache=True, nogil=True)
-def _nearest_depth(pos_w, T_c_w):
-    """The smallest positive depth of the points pos_w in the camera T_c_w (inf: none)."""
-    z_min = np.inf
-    for i in range(pos_w.shape[0]):
-        z = transform(T_c_w, pos_w[i, 0], pos_w[i, 1], pos_w[i, 2])[2]
-        if 0.0 < z < z_min:
-            z_min = z
-    return z_min
 
 
 def pose_covariance(H: np.ndarray, sigma: float, T_w_c: np.ndarray) -> np.ndarray | None:

@@ -163,15 +163,12 @@ def _normal_equations(res, seen, jac, c, wj):
 
 
 @numba.njit(cache=True, nogil=True)
-def align_level(params, image, level, patches, jac, valid, xyz, T_cur_ref, iterations, robust,
-                stop_px):
+def align_level(params, image, level, patches, jac, valid, xyz, T_cur_ref, iterations, robust):
     """Gauss-Newton at one level (`image` as for reference_patches; Tukey-weighted with
-    `robust`, the scale from the residuals at T_cur_ref), until a step moves the patches by
-    less than stop_px pixels of the level; returns the refined T_cur_ref and the pixel count
-    used."""
+    `robust`, the scale from the residuals at T_cur_ref); returns the refined T_cur_ref and the
+    pixel count used."""
     T = T_cur_ref.copy()
     n = patches.shape[0] * N4
-    px_per_rad, px_per_unit = _step_scales(params, level, valid, xyz)
     res, seen, res_new = np.empty(n), np.empty(n), np.empty(n)
     wj = np.empty((6, n))
     count = _patch_residuals(params, image, level, patches, valid, xyz, T, res, seen)
@@ -190,28 +187,14 @@ def align_level(params, image, level, patches, jac, valid, xyz, T_cur_ref, itera
         if cost_new / max(count_new, 1) > cost / max(count, 1) or count_new < 6 * N4:
             break
         T, H, b, cost, count = T_new, H_new, b_new, cost_new, count_new
-        moved = (px_per_unit * np.sqrt(xi[0] ** 2 + xi[1] ** 2 + xi[2] ** 2)
-                 + px_per_rad * np.sqrt(xi[3] ** 2 + xi[4] ** 2 + xi[5] ** 2))
-        if moved < stop_px:
+        if np.sqrt(xi @ xi) < 1e-10:
             break
     return T, count
 
 
 @numba.njit(cache=True, nogil=True)
-def _step_scales(params, level, valid, xyz):
-    """About how far (pixels of the level) a patch moves per radian a step turns and per
-    unit it moves the camera (the nearest valid point moves most)."""
-    px_per_rad = max(params[1], params[2]) / 2.0 ** level
-    z_min = np.inf
-    for i in range(xyz.shape[0]):
-        if valid[i] and 0.0 < xyz[i, 2] < z_min:
-            z_min = xyz[i, 2]
-    return px_per_rad, px_per_rad / z_min if np.isfinite(z_min) else 0.0
-
-
-@numba.njit(cache=True, nogil=True)
 def _align_levels(params, ref, cur, px_ref, xyz_ref, T_cur_ref, levels, iterations, robust,
-                  rotation_only, stop_px):
+                  rotation_only):
     """align's levels max..min in one call: `ref`, `cur` = (flat, offsets, widths, heights)
     of the pyramids, `levels` = (max, min)."""
     T = T_cur_ref.copy()
@@ -222,17 +205,15 @@ def _align_levels(params, ref, cur, px_ref, xyz_ref, T_cur_ref, levels, iteratio
         if rotation_only:
             jac[:3] = 0.0  # no gradient along translation: the update only turns
         T, _ = align_level(params, (cur[0], cur[1][level], cur[2][level], cur[3][level]), level,
-                           patches, jac, valid, xyz_ref, T, iterations, robust, stop_px)
+                           patches, jac, valid, xyz_ref, T, iterations, robust)
     return T
 
 
 def align(params: np.ndarray, ref_pyr, cur_pyr, px_ref: np.ndarray, xyz_ref: np.ndarray,
           T_cur_ref: np.ndarray, max_level: int, min_level: int, iterations: int,
-          robust: bool = True, rotation_only: bool = False,
-          stop_px: float = 0.003) -> np.ndarray:
+          robust: bool = True, rotation_only: bool = False) -> np.ndarray:
     """T_cur_ref refined by aligning 4x4 patches around px_ref (level 0) of points xyz_ref (in
-    the reference camera) from the reference pyramid to the current one, levels max..min, at
-    each until a step moves the patches by less than stop_px (pixels of the level);
+    the reference camera) from the reference pyramid to the current one, levels max..min;
     `robust` Tukey-weights the residuals (else plain least squares, as the thesis);
     `rotation_only` keeps the translation of T_cur_ref (from one without, the camera turns
     where the reference stood)."""
@@ -240,8 +221,7 @@ def align(params: np.ndarray, ref_pyr, cur_pyr, px_ref: np.ndarray, xyz_ref: np.
                          np.ascontiguousarray(px_ref, dtype=np.float64),
                          np.ascontiguousarray(xyz_ref, dtype=np.float64),
                          np.ascontiguousarray(T_cur_ref, dtype=np.float64),
-                         (max_level, min_level), iterations, robust, rotation_only,
-                         float(stop_px))
+                         (max_level, min_level), iterations, robust, rotation_only)
 
 
 @numba.njit(cache=True, nogil=True)
