@@ -22,19 +22,24 @@ HYPOTHESIS_ITERATIONS = 5
 
 
 @numba.njit(cache=True, nogil=True)
+def _squared_error(pos_w, obs, T_c_w, i):
+    """Match i's squared reprojection error (normalised plane) at T_c_w (inf behind the
+    camera)."""
+    X, Y, Z = transform(T_c_w, pos_w[i, 0], pos_w[i, 1], pos_w[i, 2])
+    if Z <= 1e-9:
+        return np.inf
+    ex = obs[i, 0] - X / Z
+    ey = obs[i, 1] - Y / Z
+    return ex * ex + ey * ey
+
+
+@numba.njit(cache=True, nogil=True)
 def squared_errors(pos_w, obs, T_c_w):
     """Per match the squared reprojection error (normalised plane) at T_c_w (inf behind the
     camera)."""
-    n = pos_w.shape[0]
-    out = np.empty(n)
-    for i in range(n):
-        X, Y, Z = transform(T_c_w, pos_w[i, 0], pos_w[i, 1], pos_w[i, 2])
-        if Z <= 1e-9:
-            out[i] = np.inf
-            continue
-        ex = obs[i, 0] - X / Z
-        ey = obs[i, 1] - Y / Z
-        out[i] = ex * ex + ey * ey
+    out = np.empty(pos_w.shape[0])
+    for i in range(pos_w.shape[0]):
+        out[i] = _squared_error(pos_w, obs, T_c_w, i)
     return out
 
 
@@ -91,12 +96,8 @@ def count_within(pos_w, obs, T_c_w, thr2, enough):
     n = pos_w.shape[0]
     count = 0
     for i in range(n):
-        X, Y, Z = transform(T_c_w, pos_w[i, 0], pos_w[i, 1], pos_w[i, 2])
-        if Z > 1e-9:
-            ex = obs[i, 0] - X / Z
-            ey = obs[i, 1] - Y / Z
-            if ex * ex + ey * ey < thr2:
-                count += 1
+        if _squared_error(pos_w, obs, T_c_w, i) < thr2:
+            count += 1
         if count + n - 1 - i < enough:
             return -1
     return count

@@ -23,8 +23,8 @@ def exp_se3(xi):
 @numba.njit(cache=True, nogil=True)
 def exp_se3_into(xi, T):
     """Write exp(xi) into the 4x4 array T, entry by entry: the kernels' hot loops call it, and
-    neither 3x3 products through BLAS nor allocating the result (RANSAC's fits: 0.6x the time
-    without) pay for the arithmetic."""
+    neither 3x3 products through BLAS nor allocating the result pay for the arithmetic
+    (RANSAC's hypothesis loop took 0.73x the time without the allocations)."""
     v0, v1, v2, w0, w1, w2 = xi[0], xi[1], xi[2], xi[3], xi[4], xi[5]
     theta = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
     if theta < 1e-8:
