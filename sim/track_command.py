@@ -187,6 +187,7 @@ def track_sequence(sequence, config, threaded: bool, max_frames: int | None,
                         np.array(log.relocalised, dtype=int))
     report["skipped"] = log.skipped
     report["tracked_late"] = log.late
+    report["merges"] = log.merges
     report["first_pose_frame"] = log.first_pose_frame
     if alignment(method) == "se3":  # a depth method: its map starts on the first depth map
         report["first_depth_frame"] = tracker.first_depth_frame
@@ -227,6 +228,7 @@ class TrackLog:
     first_pose_s: float | None = None  # seconds from the start to the first pose (not late)
     first_pose_frame: int | None = None  # index of the first frame with a pose of its own
     late: int = 0  # poses given late (FrameResult.earlier), among `poses`
+    merges: int = 0  # maps joined to the next one (FrameResult.merged)
 
     def add(self, t: float, result) -> None:
         """One camera frame at time t: its FrameResult, or None when it was skipped."""
@@ -243,12 +245,32 @@ class TrackLog:
         for late in earlier:  # the frames a new map's initialiser waited through
             self._add_pose(late.t, late.T_w_c, late.new_segment, False)
         self.late += len(earlier)
+        if getattr(result, "merged", None) is not None:
+            self._merge(result.merged)
         if result.has_pose:
             starts = result.new_segment and not (earlier and earlier[0].new_segment)
             self._add_pose(t, result.T_w_c, starts, getattr(result, "relocalized", False))
             if self.first_pose_s is None:
                 self.first_pose_s = time.perf_counter() - self.started
                 self.first_pose_frame = self.n_frames - 1
+
+    def _merge(self, S: np.ndarray) -> None:
+        """The map before the newest re-initialisation was joined to the current one: its
+        poses, moved into the current map's world by S (vo.map_merge), join its segment."""
+        if not self.segment or self.segment[-1] == 0:
+            return
+        current = self.segment[-1]
+        scale = float(np.cbrt(np.linalg.det(S[:3, :3])))
+        for k, seg in enumerate(self.segment):
+            if seg == current - 1:
+                T = self.poses[k]
+                moved = np.eye(4)
+                moved[:3, :3] = S[:3, :3] @ T[:3, :3] / scale
+                moved[:3, 3] = S[:3, :3] @ T[:3, 3] + S[:3, 3]
+                self.poses[k] = moved
+            elif seg == current:
+                self.segment[k] = current - 1
+        self.merges += 1
 
     def _add_pose(self, t: float, T_w_c: np.ndarray, new_segment: bool,
                   relocalised: bool) -> None:

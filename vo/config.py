@@ -145,6 +145,22 @@ class TrackerConfig:
     # tum_fr1_rpy frames, but with seed_skip_unseen 1 s is 6 frames short of its way back into
     # the first map (RESULTS.md: tracker-reloc-verify)
     reinit_after_lost_s: float = 1.0
+    # the map a re-initialisation replaced is kept; frames tracked in the new map try to
+    # relocalise into it (at most every merge_period_s, in the mapping step, with
+    # merge_min_matches inliers), and two tries that agree on the similarity between the maps
+    # (turned merge_max_turn_deg, scales within merge_scale_tolerance, the old points placed
+    # within merge_max_move_depths scene depths) merge them (vo.map_merge). The scale comes
+    # from the new map's points within merge_depth_radius_px of the old ones (at least
+    # merge_min_pairs, else all of them). tum_fr1_rpy's old map took 10-18 inliers where its
+    # view came back (RESULTS.md: tracker-map-merge)
+    merge_maps: bool = True
+    merge_period_s: float = 0.2
+    merge_min_matches: int = 10
+    merge_max_turn_deg: float = 3.0
+    merge_scale_tolerance: float = 0.25
+    merge_max_move_depths: float = 0.2
+    merge_depth_radius_px: float = 30.0
+    merge_min_pairs: int = 5
 
     # keyframes and mapping (6.6)
     kf_min_frames: int = 30

@@ -174,15 +174,17 @@ class Map:
     def __len__(self) -> int:
         return len(self.keyframes)
 
-    def add_keyframe(self, frame: Frame) -> int:
-        """Store a keyframe in a free slot; its matched points become observations."""
+    def add_keyframe(self, frame: Frame, observations: bool = True) -> int:
+        """Store a keyframe in a free slot; its matched points become observations (unless
+        the caller adds them: vo.map_merge)."""
         slot = next(s for s in range(len(self.kf_pyr)) if s not in self.keyframes)
         frame.is_keyframe = True
         frame.slot = slot
         self.kf_pyr[slot, : len(frame.pyr.flat)] = frame.pyr.flat
         self.kf_T_c_w[slot] = frame.T_c_w
         self.keyframes[slot] = frame
-        self.obs.add(slot, frame.feat_point, frame.feat_px, frame.feat_level)
+        if observations:
+            self.obs.add(slot, frame.feat_point, frame.feat_px, frame.feat_level)
         return slot
 
     def remove_keyframe(self, slot: int) -> None:

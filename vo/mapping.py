@@ -197,6 +197,8 @@ class Mapper:
         # called with each frame before its step (threaded mapping only): a service holds the
         # mapping thread here until the frame's estimate is on its way (daemon.tracking)
         self.before_step: Callable[[Frame], None] = lambda frame: None
+        # after each step: joins a map re-initialisation replaced (vo.map_merge), if any
+        self.merge_step: Callable[[Frame, Map], None] = lambda frame, map_: None
 
     def _target(self, frame: Frame) -> tuple:
         """What a search in `frame` takes: (pyramid layout, flat pyramid, FAST corners,
@@ -224,6 +226,7 @@ class Mapper:
             self.add_keyframe(frame, found_uv)
         else:
             self.frames_since_keyframe += 1
+        self.merge_step(frame, self.map)
 
     def _update_candidates(self, frame: Frame, cand: np.ndarray) -> np.ndarray:
         """Depth-filter update of candidate points `cand` from their matches in frame; the

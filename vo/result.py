@@ -45,6 +45,9 @@ class FrameResult:
     initialiser waited through (vo.late_poses), whose own results had none; when the first
     of them has new_segment, the new segment starts there and this frame goes on with it.
     A live consumer has sent those frames' results already and does not publish them.
+    `merged` (4x4, scale * R and t) is set when the map before the last re-initialisation
+    was joined to this one (vo.map_merge): it takes that map's world into this one's, where
+    the poses go on (the poses given in it can be re-expressed; nothing jumps).
     Everything after `quality` is given by keyword.
     """
 
@@ -62,6 +65,7 @@ class FrameResult:
     n_hypotheses: int = field(default=0, kw_only=True)
     rotation_prior: PriorUse = field(default=PriorUse.NONE, kw_only=True)
     earlier: list[FrameResult] = field(default_factory=list, kw_only=True)
+    merged: np.ndarray | None = field(default=None, kw_only=True)
 
     @property
     def has_pose(self) -> bool:

@@ -32,6 +32,7 @@ from vo.keyframe_policy import KeyframePolicy
 from vo.late_poses import late_poses
 from vo.map import Map
 from vo.map_matching import MapMatcher
+from vo.map_merge import MapMerger
 from vo.map_start import MapStart, build_depth_map, build_initial_map, init_step, seeds_for_map
 from vo.mapping import Mapper
 from vo.mapping_control import InlineMapping, MappingBacklog
@@ -75,18 +76,24 @@ class Tracker:
         # depth, so every map is metric (a monocular one's scale would be arbitrary)
         self.depth_mode = False
         self.reprojector = Reprojector(camera, self.config)
+        self.merger = MapMerger(camera, self.config, self.reprojector)
+        self.map: Map | None = None
         self._reset()
 
     # ------------------------------------------------------------------ lifecycle
     def _reset(self) -> None:
-        """Forget the map and start initialising again."""
+        """Start initialising a new map; the one it replaces is kept for merging
+        (vo.map_merge)."""
         self.mapping.stop()
         cfg = self.config
+        if self.map is not None:
+            self.merger.retire(self.map, self.tracking.last)
         self.map = Map(self.camera.width, self.camera.height, cfg.pyramid_levels,
                        cfg.max_keyframes)
         self.map.points.newest_frame = self._frame_id - 1
         self.mapper = Mapper(self.camera, cfg, self.map)
         self.mapper.after_ba = self._follow_ba
+        self.mapper.merge_step = self.merger.step
         matcher = MapMatcher(self.camera, cfg, self.map, self.reprojector)
         self.tracking = FrameTracking(cfg, matcher, KeyframePolicy(cfg, self.mapper))
         self.relocalizing = Relocalizing(cfg, Relocalizer(self.camera, cfg, matcher),
@@ -177,6 +184,9 @@ class Tracker:
             t1 = time.perf_counter()
             self.mapping.submit(frame, keyframe)
             timings["mapping"] = ms_since(t1)
+        merged = self.merger.take_merged()
+        if merged is not None:
+            result.merged = merged.matrix()
         result.timings = timings
         result.keyframe = keyframe
         return result
