@@ -297,6 +297,9 @@ class Service:
 
     def _on_tracked(self, tf: TrackedFrame) -> None:
         self.stats.frames += 1
+        if getattr(tf.result, "merged", None) is not None:
+            # the poses go on in the current map's world: nothing to reset
+            log.info("the map from before the last re-initialisation is joined to this one")
         self._set_state(self.health.on_frame(time.monotonic(), tf.t_capture,
                                              tf.result.quality))
         sent = tf.estimate is not None and self._deliver(tf.estimate)

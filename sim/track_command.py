@@ -412,6 +412,9 @@ def format_report(r: dict) -> str:
                      f"{r['longest_segment_poses']} poses"
                      + ("" if seg_ate is None else f", ATE RMSE {seg_ate:.4f} m, rotation "
                         f"RMSE {r['longest_segment_rot_rmse_deg']:.2f} deg"))
+    if r.get("merges"):
+        lines.append(f"merges     {r['merges']} (a map a re-initialisation replaced, joined "
+                     "to the next one: one segment)")
     lines += format_relocalisations(r)
     lines.append("qualities  " + ", ".join(f"{k} {v}" for k, v in r["qualities"].items()))
     if "memory" in r:

@@ -100,8 +100,7 @@ class MapMerger:
         self.camera, self.config, self.reprojector = camera, config, reprojector
         # relocalisation into the old map for merging: a weaker match count than for a lost
         # frame, as two relocalisations must agree on the whole similarity
-        self.reloc_config = replace(config, reloc_min_matches=config.merge_min_matches,
-                                    reloc_confirm=False)
+        self.reloc_config = replace(config, reloc_min_matches=config.merge_min_matches)
         self.retired: Retired | None = None
         self.estimate: Similarity | None = None
         self.last_try = -np.inf
