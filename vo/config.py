@@ -152,9 +152,12 @@ class TrackerConfig:
     # within merge_max_move_depths scene depths) merge them (vo.map_merge). The scale comes
     # from the new map's points within merge_depth_radius_px of the old ones (at least
     # merge_min_pairs, else all of them). tum_fr1_rpy's old map took 10-18 inliers where its
-    # view came back (RESULTS.md: tracker-map-merge)
+    # view came back. A try aligns directly to the old keyframes (~10 ms on tum); every
+    # merge_features_every-th also matches ORB features (~40 ms more; 0 = never)
+    # (RESULTS.md: tracker-map-merge)
     merge_maps: bool = True
-    merge_period_s: float = 0.2
+    merge_period_s: float = 0.25
+    merge_features_every: int = 4
     merge_min_matches: int = 10
     merge_max_turn_deg: float = 3.0
     merge_scale_tolerance: float = 0.25

@@ -55,6 +55,7 @@ LIMITS = {
     "reinit_after_lost_s": interval(0, 3600),
     "merge_period_s": interval(0, 3600),
     "merge_min_matches": SOME,
+    "merge_features_every": interval(0, 1000, why="0: direct alignment only"),
     "merge_max_turn_deg": interval(above=0, high=180),
     "merge_scale_tolerance": interval(above=0, high=100),
     "merge_max_move_depths": interval(above=0, high=1000),

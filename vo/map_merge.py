@@ -49,10 +49,12 @@ class Similarity:
 
 @dataclass
 class Retired:
-    """A map re-initialisation replaced, and what relocalises frames into it."""
+    """A map re-initialisation replaced, and what relocalises frames into it: by direct
+    alignment alone, and also by ORB features and PnP (ten times the cost)."""
 
     map: Map
-    relocalizer: Relocalizer
+    direct: Relocalizer
+    features: Relocalizer
     last: Frame | None
 
 
@@ -104,6 +106,7 @@ class MapMerger:
         self.retired: Retired | None = None
         self.estimate: Similarity | None = None
         self.last_try = -np.inf
+        self.tries = 0
         self.merged: Similarity | None = None  # done, not yet reported (take_merged)
 
     def retire(self, map_: Map, last: Frame | None) -> None:
@@ -113,7 +116,10 @@ class MapMerger:
             self.retired = None
             return
         matcher = MapMatcher(self.camera, self.reloc_config, map_, self.reprojector)
-        self.retired = Retired(map_, Relocalizer(self.camera, self.reloc_config, matcher), last)
+        direct = replace(self.reloc_config, reloc_features=False)
+        self.retired = Retired(map_, Relocalizer(self.camera, direct, matcher),
+                               Relocalizer(self.camera, self.reloc_config, matcher), last)
+        self.tries = 0
 
     def take_merged(self) -> Similarity | None:
         """The similarity of a merge done since the last call (None if none)."""
@@ -144,7 +150,11 @@ class MapMerger:
         it does not relocalise or shows no scale."""
         probe = Frame(frame.id, frame.t, frame.pyr.images[0], self.camera,
                       self.config.pyramid_levels)
-        found = self.retired.relocalizer.find(probe, {}, self.retired.last)
+        every = self.config.merge_features_every
+        features = self.config.reloc_features and every > 0 and self.tries % every == 0
+        self.tries += 1
+        reloc = self.retired.features if features else self.retired.direct
+        found = reloc.find(probe, {}, self.retired.last)
         if found is None:
             return None
         m: Matches = found[0]
