@@ -88,15 +88,20 @@ def test_absorbed_keyframes_see_their_points_where_they_did():
     assert sorted(dst.obs.point[dst.obs.kf == slots[slot]]) == sorted(new)
 
 
-def test_absorbing_stops_at_the_keyframe_cap():
+def test_absorbing_keeps_the_keyframes_nearest_the_newest_under_the_cap():
     cam = CameraModel(64, 48, 50.0, 50.0, 31.5, 23.5)
     img = np.zeros((48, 64), np.uint8)
     src, dst = Map(64, 48, 3, 4), Map(64, 48, 3, 4)
-    for k in range(3):
-        dst.add_keyframe(Frame(k, k, img, cam, 3))
-        src.add_keyframe(Frame(10 + k, 10 + k, img, cam, 3))
-    assert len(absorb(dst, src, Similarity(np.eye(3), np.zeros(3), 1.0), 4)) == 1
-    assert len(dst) == 4
+    for k, (x_dst, x_src) in enumerate([(5.0, 1.0), (9.0, 2.0), (0.0, 7.0)]):
+        for m, x, fid in ((dst, x_dst, k), (src, x_src, 10 + k)):
+            kf = Frame(fid, float(fid), img, cam, 3)
+            kf.T_c_w[:3, 3] = (-x, 0.0, 0.0)  # the camera at x
+            m.add_keyframe(kf)
+    # dst's newest stands at 0: kept are it and the three nearest of the others, the src
+    # keyframes at 1 and 2 and dst's at 5
+    slots = absorb(dst, src, Similarity(np.eye(3), np.zeros(3), 1.0), 4)
+    assert len(dst) == 4 and len(slots) == 2
+    assert sorted(float(kf.position[0]) for kf in dst.keyframes.values()) == [0, 1, 2, 5]
 
 
 # a flight over the textured plane: around A, (covered) over to B, far enough that no view of

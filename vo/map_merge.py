@@ -172,21 +172,29 @@ class MapMerger:
 
 
 def absorb(dst: Map, src: Map, S: Similarity, max_keyframes: int) -> dict[int, int]:
-    """Add src's keyframes (those closest to dst's newest keyframe, as many as leave dst at
-    max_keyframes) with their live points and observations to dst, moved by S into dst's
-    world. Returns src slot -> dst slot."""
-    room = max(max_keyframes - len(dst), 0)
+    """Add src's keyframes with their live points and observations to dst, moved by S into
+    dst's world. Of both maps' keyframes, the max_keyframes nearest to dst's newest one are
+    kept (the map's own cap drops the farthest too): dst's others are removed. Returns src
+    slot -> dst slot."""
     newest = max(dst.keyframes.values(), key=lambda kf: kf.id, default=None)
     here = newest.position if newest is not None else np.zeros(3)
     moved = {slot: S.pose(kf.T_w_c) for slot, kf in src.keyframes.items()}
-    order = sorted(moved, key=lambda s: np.linalg.norm(moved[s][:3, 3] - here))
+    both = [(float(np.linalg.norm(T[:3, 3] - here)), "src", s) for s, T in moved.items()]
+    both += [(float(np.linalg.norm(kf.position - here)), "dst", s)
+             for s, kf in dst.keyframes.items() if kf is not newest]
+    both.sort(key=lambda row: row[0])
+    kept = both[:max(max_keyframes - (newest is not None), 0)]
+    for _, side, s in both[len(kept):]:
+        if side == "dst":
+            dst.remove_keyframe(s)
     slots = {}
-    for s in order[:room]:
-        kf = src.keyframes[s]
-        kf.T_c_w = inv_se3(moved[s])
-        if kf.pose_info is not None:
-            kf.pose_info = _scaled_info(kf.pose_info, S.scale)
-        slots[s] = dst.add_keyframe(kf, observations=False)
+    for _, side, s in kept:
+        if side == "src":
+            kf = src.keyframes[s]
+            kf.T_c_w = inv_se3(moved[s])
+            if kf.pose_info is not None:
+                kf.pose_info = _scaled_info(kf.pose_info, S.scale)
+            slots[s] = dst.add_keyframe(kf, observations=False)
     ids = _copy_points(dst, src, slots, S.scale)
     rows = np.isin(src.obs.kf, list(slots)) & (ids[src.obs.point] >= 0)
     for s, d in slots.items():
