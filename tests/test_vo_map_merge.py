@@ -4,6 +4,7 @@ when the camera comes back to where the old map was, with rotation, translation 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from vo_scenes import load_texture, look_down_pose, render_plane, small_camera
 
 from calib.camera import CameraModel
@@ -122,11 +123,14 @@ def _out_and_back(i: int) -> np.ndarray:
     return look_down_pose(x + wobble, 0.1 * np.sin(i * 0.05), HEIGHT, yaw=0.1 * np.sin(0.03 * i))
 
 
-def test_coming_back_over_the_first_map_merges_it(data_dir):
+@pytest.mark.parametrize("mapping", ["inline", "stepped"])
+def test_coming_back_over_the_first_map_merges_it(data_dir, mapping):
+    """Stepped: the mapping thread's order (the merge tried one frame late, its result
+    reported on a later frame), deterministically (vo.stepped_mapping)."""
     cam = small_camera()
     tex = load_texture(data_dir)
     rng = np.random.default_rng(5)
-    tracker = Tracker(cam, TrackerConfig())
+    tracker = Tracker(cam, TrackerConfig(), stepped_mapping=mapping == "stepped")
     log, gt_T, n = TrackLog(None), [], 300
     merged_at = []
     for i in range(n):
@@ -134,6 +138,8 @@ def test_coming_back_over_the_first_map_merges_it(data_dir):
         image = (rng.integers(0, 12, (cam.height, cam.width)).astype(np.uint8)
                  if i in COVERED else render_plane(tex, cam, T))
         r = tracker.process(image, i / 30.0)
+        if mapping == "stepped":
+            tracker.map_waiting()
         if r.merged is not None:
             merged_at.append(i)
         log.add(i / 30.0, r)
