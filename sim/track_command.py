@@ -23,7 +23,7 @@ from sim.trajectory import Trajectory, write_tum
 from vo.result import Quality
 
 FRAME_COLUMNS = ("t", "quality", "matches", "attempts", "ransac_hypotheses", "inliers",
-                 "keyframe", "new_segment", "relocalized", "error_m")
+                 "keyframe", "new_segment", "relocalized", "merged", "error_m")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -50,8 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(keyframes, points, observations); report the peak RSS")
     parser.add_argument("--frames-csv", type=Path, default=None, metavar="FILE",
                         help="write one CSV row per frame: time, quality, matches, match "
-                             "attempts, RANSAC hypotheses, inliers, keyframe, new-segment and "
-                             "relocalised flags, position error (m) after the Sim(3) "
+                             "attempts, RANSAC hypotheses, inliers, keyframe, new-segment, "
+                             "relocalised and merged flags, position error (m) after the Sim(3) "
                              "alignment")
     parser.add_argument("--method", default="sdvl", choices=list(METHODS),
                         help="sdvl (monocular, ATE after Sim(3) alignment), sdvl-depth (SDVL "
@@ -305,7 +305,8 @@ def frame_row(result) -> dict:
             "attempts": result.n_attempts, "ransac_hypotheses": result.n_hypotheses,
             "inliers": result.n_inliers, "keyframe": int(result.keyframe),
             "new_segment": int(result.new_segment),
-            "relocalized": int(getattr(result, "relocalized", False)), "error_m": ""}
+            "relocalized": int(getattr(result, "relocalized", False)),
+            "merged": int(getattr(result, "merged", None) is not None), "error_m": ""}
 
 
 def write_frames_csv(path: Path, rows: list[dict], groundtruth: Trajectory | None,

@@ -9,7 +9,7 @@ from vo_scenes import load_texture, look_down_pose, render_plane, small_camera
 
 from calib.camera import CameraModel
 from sim.metrics import evaluate
-from sim.track_command import TrackLog
+from sim.track_command import TrackLog, frame_row
 from sim.trajectory import Trajectory
 from vo.config import TrackerConfig
 from vo.frame import Frame
@@ -142,6 +142,7 @@ def test_coming_back_over_the_first_map_merges_it(data_dir, mapping):
             tracker.map_waiting()
         if r.merged is not None:
             merged_at.append(i)
+        assert frame_row(r)["merged"] == (r.merged is not None)  # --frames-csv says where
         log.add(i / 30.0, r)
         gt_T.append(np.linalg.inv(T))
     tracker.close()
