@@ -241,12 +241,12 @@ class TrackLog:
             self.frame_rows.append(frame_row(result))
         if result.quality != Quality.INITIALIZING:
             self.timings.append(result.timings)
+        if getattr(result, "merged", None) is not None:  # of the maps before this result's
+            self._merge(result.merged)
         earlier = getattr(result, "earlier", [])
         for late in earlier:  # the frames a new map's initialiser waited through
             self._add_pose(late.t, late.T_w_c, late.new_segment, False)
         self.late += len(earlier)
-        if getattr(result, "merged", None) is not None:
-            self._merge(result.merged)
         if result.has_pose:
             starts = result.new_segment and not (earlier and earlier[0].new_segment)
             self._add_pose(t, result.T_w_c, starts, getattr(result, "relocalized", False))

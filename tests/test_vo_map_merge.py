@@ -15,6 +15,7 @@ from vo.config import TrackerConfig
 from vo.frame import Frame
 from vo.map import CONVERGED, Map
 from vo.map_merge import Similarity, absorb, agree, depth_ratio, similarity
+from vo.result import FrameResult, Quality
 from vo.se3 import exp_se3, inv_se3
 from vo.tracker import Tracker
 
@@ -103,6 +104,26 @@ def test_absorbing_keeps_the_keyframes_nearest_the_newest_under_the_cap():
     slots = absorb(dst, src, Similarity(np.eye(3), np.zeros(3), 1.0), 4)
     assert len(dst) == 4 and len(slots) == 2
     assert sorted(float(kf.position[0]) for kf in dst.keyframes.values()) == [0, 1, 2, 5]
+
+
+def _at(x: float) -> np.ndarray:
+    T = np.eye(4)
+    T[0, 3] = x
+    return T
+
+
+def test_the_log_joins_the_two_maps_before_a_result_that_starts_a_third():
+    """A merge done while a new map starts (the mapping thread finishing its backlog as the
+    tracker resets) comes on the new map's first result: it joins the two maps before it."""
+    log = TrackLog(None)
+    for k, (x, new) in enumerate([(0, True), (1, False), (100, True), (101, False)]):
+        log.add(k, FrameResult(k, _at(x), Quality.GOOD, new_segment=new))
+    late = FrameResult(4, _at(500), Quality.GOOD, new_segment=True)
+    S = Similarity(np.eye(3), np.array([100.0, 0, 0]), 1.0)  # A's world onto B's
+    log.add(5, FrameResult(5, _at(501), Quality.GOOD, new_segment=True, earlier=[late],
+                           merged=S.matrix()))
+    assert log.segment == [0, 0, 0, 0, 1, 1]
+    assert [T[0, 3] for T in log.poses] == [100, 101, 100, 101, 500, 501]
 
 
 # a flight over the textured plane: around A, (covered) over to B, far enough that no view of

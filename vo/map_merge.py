@@ -21,7 +21,7 @@ from vo.map import CANDIDATE, CONVERGED, Map
 from vo.map_matching import MapMatcher, Matches
 from vo.relocalization import Relocalizer
 from vo.reprojector import Reprojector
-from vo.se3 import inv_se3, rotation_angle_deg
+from vo.se3 import inv_se3, orthonormalized, rotation_angle_deg
 
 
 @dataclass
@@ -108,12 +108,15 @@ class MapMerger:
         self.last_try = -np.inf
         self.tries = 0
         self.merged: Similarity | None = None  # done, not yet reported (take_merged)
+        self.metric = False  # both maps from depth maps: scale 1 (set by the tracker)
 
     def retire(self, map_: Map, last: Frame | None) -> None:
-        """Keep a map re-initialisation is replacing (the newest one only)."""
+        """Keep a map re-initialisation is replacing (the newest one only; a map of fewer
+        than two keyframes leaves the one kept before)."""
         self.estimate = None
-        if not self.config.merge_maps or len(map_) < 2:
+        if not self.config.merge_maps:
             self.retired = None
+        if not self.config.merge_maps or len(map_) < 2:
             return
         matcher = MapMatcher(self.camera, self.reloc_config, map_, self.reprojector)
         direct = replace(self.reloc_config, reloc_features=False)
@@ -139,7 +142,8 @@ class MapMerger:
         if self.estimate is not None and agree(self.estimate, S, at, depth, self.config):
             with current.lock:
                 absorb(current, self.retired.map, S, self.config.max_keyframes)
-            self.merged, self.retired, self.estimate = S, None, None
+                self.merged = S  # taken by the tracker under the same lock
+            self.retired, self.estimate = None, None
             return
         self.estimate = S
 
@@ -158,17 +162,18 @@ class MapMerger:
         if found is None:
             return None
         m: Matches = found[0]
+        T_old = orthonormalized(m.T)
         old_pos = self.retired.map.points.pos_w[m.ids[m.inlier]]
-        old_cam = old_pos @ m.T[:3, :3].T + m.T[:3, 3]
+        old_cam = old_pos @ T_old[:3, :3].T + T_old[:3, 3]
         new_pos = current.points.pos_w[frame.feat_point]
         new_cam = new_pos @ frame.T_c_w[:3, :3].T + frame.T_c_w[:3, 3]
-        scale = depth_ratio(np.linalg.norm(old_cam, axis=1), m.uv[m.inlier],
-                            np.linalg.norm(new_cam, axis=1), frame.feat_px,
-                            self.config.merge_depth_radius_px, self.config.merge_min_pairs)
-        if not np.isfinite(scale) or scale <= 0:
+        scale = 1.0 if self.metric else depth_ratio(
+            np.linalg.norm(old_cam, axis=1), m.uv[m.inlier], np.linalg.norm(new_cam, axis=1),
+            frame.feat_px, self.config.merge_depth_radius_px, self.config.merge_min_pairs)
+        if not np.isfinite(scale) or scale <= 0 or len(new_cam) == 0:
             return None
         depth = float(np.median(np.linalg.norm(new_cam, axis=1)))
-        return similarity(m.T, frame.T_c_w, scale), old_pos.mean(axis=0), depth
+        return similarity(T_old, frame.T_c_w, scale), old_pos.mean(axis=0), depth
 
 
 def absorb(dst: Map, src: Map, S: Similarity, max_keyframes: int) -> dict[int, int]:

@@ -45,9 +45,11 @@ class FrameResult:
     initialiser waited through (vo.late_poses), whose own results had none; when the first
     of them has new_segment, the new segment starts there and this frame goes on with it.
     A live consumer has sent those frames' results already and does not publish them.
-    `merged` (4x4, scale * R and t) is set when the map before the last re-initialisation
-    was joined to this one (vo.map_merge): it takes that map's world into this one's, where
-    the poses go on (the poses given in it can be re-expressed; nothing jumps).
+    `merged` (4x4, scale * R and t) is set when, since the previous result, the map before
+    the newest re-initialisation was joined to the one after it (vo.map_merge): it takes the
+    older map's world into the newer one's, where the poses went on (the poses given in the
+    older one can be re-expressed; nothing jumps). It concerns the poses before this result's
+    (a result that starts a new map may carry the merge of the two before it).
     Everything after `quality` is given by keyword.
     """
 

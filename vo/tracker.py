@@ -167,6 +167,7 @@ class Tracker:
         frame.depth = depth
         frame.orientation = orientation
         self.depth_mode = self.depth_mode or depth is not None
+        self.merger.metric = self.depth_mode  # maps from depth maps are metric: scale 1
         self._frame_id += 1
         self.map.points.newest_frame = frame.id
         timings["pyramid"] = ms_since(t0)
@@ -184,7 +185,8 @@ class Tracker:
             t1 = time.perf_counter()
             self.mapping.submit(frame, keyframe)
             timings["mapping"] = ms_since(t1)
-        merged = self.merger.take_merged()
+        with self.map.lock:
+            merged = self.merger.take_merged()
         if merged is not None:
             result.merged = merged.matrix()
         result.timings = timings
