@@ -14,7 +14,7 @@ from sim.trajectory import Trajectory
 from vo.config import TrackerConfig
 from vo.frame import Frame
 from vo.map import CONVERGED, Map
-from vo.map_merge import Similarity, absorb, agree, depth_ratio, similarity
+from vo.map_merge import MapMerger, Similarity, absorb, agree, depth_ratio, similarity
 from vo.result import FrameResult, Quality
 from vo.se3 import exp_se3, inv_se3
 from vo.tracker import Tracker
@@ -104,6 +104,15 @@ def test_absorbing_keeps_the_keyframes_nearest_the_newest_under_the_cap():
     slots = absorb(dst, src, Similarity(np.eye(3), np.zeros(3), 1.0), 4)
     assert len(dst) == 4 and len(slots) == 2
     assert sorted(float(kf.position[0]) for kf in dst.keyframes.values()) == [0, 1, 2, 5]
+
+
+def test_tries_come_less_often_while_the_view_does_not_come_back():
+    merger = MapMerger(small_camera(), TrackerConfig(), None)
+    periods = []
+    for tries in (0, 39, 40, 80, 120, 1000):
+        merger.tries = tries
+        periods.append(merger.period())
+    assert periods == [0.25, 0.25, 0.5, 1.0, 2.0, 2.0]
 
 
 def _at(x: float) -> np.ndarray:

@@ -153,10 +153,14 @@ class TrackerConfig:
     # from the new map's points within merge_depth_radius_px of the old ones (at least
     # merge_min_pairs, else all of them). tum_fr1_rpy's old map took 10-18 inliers where its
     # view came back. A try aligns directly to the old keyframes (~10 ms on tum); every
-    # merge_features_every-th also matches ORB features (~40 ms more; 0 = never)
-    # (RESULTS.md: tracker-map-merge)
+    # merge_features_every-th also matches ORB features (~40 ms more; 0 = never). The period
+    # doubles after every merge_backoff_tries tries, up to merge_period_max_s: a place never
+    # seen again costs ~1% of a core after 70 s instead of ~8% (tum_fr1_rpy's merges came
+    # within 5 s) (RESULTS.md: tracker-map-merge)
     merge_maps: bool = True
     merge_period_s: float = 0.25
+    merge_backoff_tries: int = 40
+    merge_period_max_s: float = 2.0
     merge_features_every: int = 4
     merge_min_matches: int = 10
     merge_max_turn_deg: float = 3.0

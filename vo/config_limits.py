@@ -54,6 +54,8 @@ LIMITS = {
     "reloc_feature_keyframes": SOME,
     "reinit_after_lost_s": interval(0, 3600),
     "merge_period_s": interval(0, 3600),
+    "merge_backoff_tries": SOME,
+    "merge_period_max_s": interval(0, 3600),
     "merge_min_matches": SOME,
     "merge_features_every": interval(0, 1000, why="0: direct alignment only"),
     "merge_max_turn_deg": interval(above=0, high=180),

@@ -134,8 +134,8 @@ class MapMerger:
 
     def step(self, frame: Frame, current: Map) -> None:
         """Try to relocalise a frame tracked in the current map into the retired one (at
-        most every merge_period_s), and merge them when two tries agree."""
-        if self.retired is None or frame.t - self.last_try < self.config.merge_period_s:
+        most every period()), and merge them when two tries agree."""
+        if self.retired is None or frame.t - self.last_try < self.period():
             return
         self.last_try = frame.t
         found = self._relocalise(frame, current)
@@ -149,6 +149,14 @@ class MapMerger:
             self.retired, self.estimate = None, None
             return
         self.estimate = S
+
+    def period(self) -> float:
+        """Seconds between tries: merge_period_s, doubled after every merge_backoff_tries
+        tries (a view that has not come back for a while costs less), at most
+        merge_period_max_s."""
+        cfg = self.config
+        doubled = cfg.merge_period_s * 2.0 ** (self.tries // cfg.merge_backoff_tries)
+        return min(doubled, max(cfg.merge_period_max_s, cfg.merge_period_s))
 
     def _relocalise(self, frame: Frame, current: Map
                     ) -> tuple[Similarity, np.ndarray, float] | None:
