@@ -254,20 +254,16 @@ class TrackLog:
                 self.first_pose_s = time.perf_counter() - self.started
                 self.first_pose_frame = self.n_frames - 1
 
-    def _merge(self, S: np.ndarray) -> None:
+    def _merge(self, S) -> None:
         """The map before the newest re-initialisation was joined to the current one: its
-        poses, moved into the current map's world by S (vo.map_merge), join its segment."""
+        poses, moved into the current map's world by S (vo.map_merge.Similarity), join its
+        segment."""
         if not self.segment or self.segment[-1] == 0:
             return
         current = self.segment[-1]
-        scale = float(np.cbrt(np.linalg.det(S[:3, :3])))
         for k, seg in enumerate(self.segment):
             if seg == current - 1:
-                T = self.poses[k]
-                moved = np.eye(4)
-                moved[:3, :3] = S[:3, :3] @ T[:3, :3] / scale
-                moved[:3, 3] = S[:3, :3] @ T[:3, 3] + S[:3, 3]
-                self.poses[k] = moved
+                self.poses[k] = S.pose(self.poses[k])
             elif seg == current:
                 self.segment[k] = current - 1
         self.merges += 1

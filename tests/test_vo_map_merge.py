@@ -130,7 +130,7 @@ def test_the_log_joins_the_two_maps_before_a_result_that_starts_a_third():
     late = FrameResult(4, _at(500), Quality.GOOD, new_segment=True)
     S = Similarity(np.eye(3), np.array([100.0, 0, 0]), 1.0)  # A's world onto B's
     log.add(5, FrameResult(5, _at(501), Quality.GOOD, new_segment=True, earlier=[late],
-                           merged=S.matrix()))
+                           merged=S))
     assert log.segment == [0, 0, 0, 0, 1, 1]
     assert [T[0, 3] for T in log.poses] == [100, 101, 100, 101, 500, 501]
 

@@ -34,13 +34,6 @@ class Similarity:
     t: np.ndarray
     scale: float
 
-    def matrix(self) -> np.ndarray:
-        """The 4x4 matrix [scale R, t; 0, 1]."""
-        S = np.eye(4)
-        S[:3, :3] = self.scale * self.R
-        S[:3, 3] = self.t
-        return S
-
     def pose(self, T_w_c: np.ndarray) -> np.ndarray:
         """A world-from-camera pose of the old map in the new map's world."""
         out = np.eye(4)
@@ -111,14 +104,12 @@ class MapMerger:
         self.last_try = -np.inf
         self.tries = 0
         self.merged: Similarity | None = None  # done, not yet reported (take_merged)
-        self.metric = False  # both maps from depth maps: scale 1 (set by the tracker)
+        self.metric = False  # the maps are from depth maps: scale 1
 
-    def retire(self, map_: Map, last: Frame | None) -> None:
+    def retire(self, map_: Map, last: Frame | None, metric: bool) -> None:
         """Keep a map re-initialisation is replacing (the newest one only; a map of fewer
-        than two keyframes leaves the one kept before)."""
-        self.estimate = None
-        if not self.config.merge_maps:
-            self.retired = None
+        than two keyframes leaves the one kept before); `metric`: maps from depth maps."""
+        self.estimate, self.metric = None, metric
         if not self.config.merge_maps or len(map_) < 2:
             return
         matcher = MapMatcher(self.camera, self.reloc_config, map_, self.reprojector)
@@ -240,7 +231,9 @@ def _copy_points(dst: Map, src: Map, slots: dict[int, int], scale: float) -> np.
         getattr(dp, name)[new] = getattr(sp, name)[old]
     for name in ("rho", "sigma", "rho_range"):  # inverse depths: host-camera units shrink
         getattr(dp, name)[new] /= scale
-    dp.host[new] = [slots[int(h)] for h in sp.host[old]]
+    to_dst = np.full(len(src.kf_pyr), -1, dtype=np.int64)
+    to_dst[list(slots)] = list(slots.values())
+    dp.host[new] = to_dst[sp.host[old]]
     for d in set(slots.values()):
         mine = new[dp.host[new] == d]
         dp.update_positions(mine, dst.keyframes[d].T_w_c)

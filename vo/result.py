@@ -5,8 +5,12 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from vo.map_merge import Similarity
 
 
 class Quality(StrEnum):
@@ -45,7 +49,7 @@ class FrameResult:
     initialiser waited through (vo.late_poses), whose own results had none; when the first
     of them has new_segment, the new segment starts there and this frame goes on with it.
     A live consumer has sent those frames' results already and does not publish them.
-    `merged` (4x4, scale * R and t) is set when, since the previous result, the map before
+    `merged` (vo.map_merge.Similarity) is set when, since the previous result, the map before
     the newest re-initialisation was joined to the one after it (vo.map_merge): it takes the
     older map's world into the newer one's, where the poses went on (the poses given in the
     older one can be re-expressed; nothing jumps). It concerns the poses before this result's
@@ -67,7 +71,7 @@ class FrameResult:
     n_hypotheses: int = field(default=0, kw_only=True)
     rotation_prior: PriorUse = field(default=PriorUse.NONE, kw_only=True)
     earlier: list[FrameResult] = field(default_factory=list, kw_only=True)
-    merged: np.ndarray | None = field(default=None, kw_only=True)
+    merged: Similarity | None = field(default=None, kw_only=True)
 
     @property
     def has_pose(self) -> bool:

@@ -87,7 +87,7 @@ class Tracker:
         self.mapping.stop()
         cfg = self.config
         if self.map is not None:
-            self.merger.retire(self.map, self.tracking.last)
+            self.merger.retire(self.map, self.tracking.last, metric=self.depth_mode)
         self.map = Map(self.camera.width, self.camera.height, cfg.pyramid_levels,
                        cfg.max_keyframes)
         self.map.points.newest_frame = self._frame_id - 1
@@ -167,7 +167,6 @@ class Tracker:
         frame.depth = depth
         frame.orientation = orientation
         self.depth_mode = self.depth_mode or depth is not None
-        self.merger.metric = self.depth_mode  # maps from depth maps are metric: scale 1
         self._frame_id += 1
         self.map.points.newest_frame = frame.id
         timings["pyramid"] = ms_since(t0)
@@ -186,9 +185,7 @@ class Tracker:
             self.mapping.submit(frame, keyframe)
             timings["mapping"] = ms_since(t1)
         with self.map.lock:
-            merged = self.merger.take_merged()
-        if merged is not None:
-            result.merged = merged.matrix()
+            result.merged = self.merger.take_merged()
         result.timings = timings
         result.keyframe = keyframe
         return result
