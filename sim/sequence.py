@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -72,6 +74,21 @@ class Sequence(DepthMaps):
         if index >= len(self) or self.timestamps[index] != t:
             raise InputError(f"sequence '{self.name}' has no frame at t = {t}")
         return self.depth(index)
+
+
+def every(sequence: Sequence, k: int) -> Sequence:
+    """Every k-th frame of `sequence` from its first, with the same camera, ground truth and
+    IMU: k times the motion between frames (a slower camera, or a faster vehicle)."""
+    if k < 1:
+        raise InputError("--every must be at least 1")
+    if k == 1:
+        return sequence
+    images, stream, depth = sequence.image_loader, sequence.frame_iter, sequence.depth_loader
+    return dataclasses.replace(
+        sequence, timestamps=sequence.timestamps[::k],
+        image_loader=None if images is None else lambda i: images(i * k),
+        frame_iter=None if stream is None else lambda: itertools.islice(stream(), 0, None, k),
+        depth_loader=None if depth is None else lambda i: depth(i * k))
 
 
 def image_list_sequence(name: str, camera: CameraModel, times: np.ndarray, paths: list[Path],

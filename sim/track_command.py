@@ -16,6 +16,7 @@ import numpy as np
 
 from sdvl.errors import InputError
 from sim.replay.progress import progress_bar
+from sim.sequence import every
 from sim.shared_data import shared_data_dir
 from sim.track_methods import METHODS, alignment, build_tracker, check_method, load_config
 from sim.track_relocs import add_relocalisations, format_relocalisations
@@ -43,6 +44,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --mapping-period: a mapping step starts D frame periods "
                              "after its frame at the earliest")
     parser.add_argument("--max-frames", type=int, default=None, metavar="N")
+    parser.add_argument("--every", type=int, default=1, metavar="K",
+                        help="track every K-th frame only: K times the motion between frames, "
+                             "as a slower camera or a faster vehicle would see (default 1)")
     parser.add_argument("--size", default=None, metavar="WxH",
                         help="image size for a synthetic preset (default: the preset's)")
     parser.add_argument("--memory", type=int, default=None, metavar="N",
@@ -122,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
         from sim.render_command import parse_size  # loads the renderer: only when asked
 
         size = parse_size(args.size)
-    sequence = resolve_sequence(args.sequence, size)
+    sequence = every(resolve_sequence(args.sequence, size), args.every)
     check_method(args.method, sequence)
     if args.memory is not None and args.method == "rgbd-sift":
         raise InputError("--memory reports SDVL's map: it is for --method sdvl or sdvl-depth")

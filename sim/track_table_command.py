@@ -74,6 +74,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mapping-period", type=int, default=None, metavar="P",
                         help="emulated slow mapping, as for sdvl track")
     parser.add_argument("--max-frames", type=int, default=None, metavar="N")
+    parser.add_argument("--every", type=int, default=1, metavar="K",
+                        help="every K-th frame only, as for sdvl track")
     parser.add_argument("--warm-up", type=int, default=WARM_UP_FRAMES, metavar="N",
                         help="first track N frames of the first sequence untimed, with every "
                              f"stage on, so numba's compilation is not timed (default "
@@ -146,6 +148,7 @@ def _plan(args: argparse.Namespace) -> list[tuple[str, Variant, int | None]]:
 def _sequences(args: argparse.Namespace):
     """(name, world seed or None, sequence in memory) of every sequence to track."""
     from sim.replay.seeds import parse_seeds
+    from sim.sequence import every
     from sim.track_command import resolve_sequence
 
     size = None
@@ -158,7 +161,7 @@ def _sequences(args: argparse.Namespace):
                 for name in config_names(args.configs))
     for name in args.sequences:
         for world in worlds:
-            sequence = resolve_sequence(name, size, world, args.textures)
+            sequence = every(resolve_sequence(name, size, world, args.textures), args.every)
             yield Path(name).name, world, in_memory(sequence, args.max_frames,
                                                     depth and sequence.has_depth)
 

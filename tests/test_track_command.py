@@ -148,3 +148,28 @@ def test_profile_lists_the_tracker_functions_per_frame(data_dir, capsys):
     assert all(f["quality"] != "initializing" for f in profile["slowest"])
     assert main(["track", str(data_dir / "vamr_ex01_checkerboard736"), "--profile", "5",
                  "--threaded"]) == 2  # cProfile sees one thread: a clear error
+
+
+def test_every_kth_frame_keeps_times_images_and_ground_truth(data_dir, tmp_path, capsys):
+    from sim.datasets import open_sequence
+    from sim.sequence import Sequence, every
+
+    seq = open_sequence(data_dir / "vamr_ex01_checkerboard736")
+    third = every(seq, 3)
+    assert len(third) == 246 and third.groundtruth is seq.groundtruth
+    frames = list(third.frames(2))
+    assert [t for t, _ in frames] == [seq.timestamps[0], seq.timestamps[3]]
+    assert np.array_equal(frames[1][1], seq.image(3))
+    # a stream read in order (video, synthetic presets) is thinned the same way
+    stream = Sequence("s", seq.camera, seq.timestamps[:7],
+                      frame_iter=lambda: ((float(i), np.full((2, 2), i, np.uint8))
+                                          for i in range(7)))
+    assert [t for t, _ in every(stream, 3).frames()] == [0.0, 3.0, 6.0]
+    out = tmp_path / "t.txt"
+    assert main(["track", str(data_dir / "vamr_ex01_checkerboard736"), "--every", "3",
+                 "--max-frames", "40", "--json", "--quiet", "--out", str(out)]) == 0
+    assert json.loads(capsys.readouterr().out)["frames"] == 40
+    times = read_tum(out).t
+    assert np.all(np.isin(times, seq.timestamps[:120:3]))
+    assert main(["track", str(data_dir / "vamr_ex01_checkerboard736"), "--every", "0"]) == 2
+    assert "--every must be at least 1" in capsys.readouterr().err
