@@ -48,6 +48,11 @@ def _reference_ransac(pos_w, obs, scale, T_prior, subsets, threshold, p, T_first
     return best, tried
 
 
+def _plain(n: int) -> np.ndarray:
+    """No whitening: identity matrices for n matches."""
+    return np.broadcast_to(np.eye(2), (n, 2, 2)).copy()
+
+
 def test_the_first_rows_of_subsets_do_not_depend_on_how_many_are_drawn():
     """RANSAC draws as many as it needs: the rows it tries are those of the whole cap."""
     whole = orj.random_subsets(40, 30, 7)
@@ -62,10 +67,11 @@ def test_a_hypothesis_is_scored_only_while_it_can_beat_the_best():
                              rng.uniform(2, 4, 50)])
     obs = pos_w[:, :2] / pos_w[:, 2:] + rng.normal(0, 0.004, (50, 2))
     thr2 = 0.004 ** 2
-    within = int((orj.squared_errors(pos_w, obs, np.eye(4)) < thr2).sum())
+    plain = _plain(50)
+    within = int((orj.squared_errors(pos_w, obs, plain, np.eye(4)) < thr2).sum())
     assert 0 < within < 50
-    assert orj.count_within(pos_w, obs, np.eye(4), thr2, within) == within
-    assert orj.count_within(pos_w, obs, np.eye(4), thr2, within + 1) == -1
+    assert orj.count_within(pos_w, obs, plain, np.eye(4), thr2, within) == within
+    assert orj.count_within(pos_w, obs, plain, np.eye(4), thr2, within + 1) == -1
 
 
 def test_ransac_matches_the_reference_and_finds_the_outliers():
@@ -87,13 +93,29 @@ def test_ransac_matches_the_reference_and_finds_the_outliers():
     cases = [(np.eye(4), subsets, True), (np.eye(4), hopeless, False), (T_true, hopeless, True)]
     for T_first, rows, finds_them in cases:
         args = (pos_w, obs, scale, np.eye(4), rows, 2.0 / 500, 0.99, T_first)
-        inlier, tried = orj.ransac(*args[:4], lambda k, r=rows: r[:k],
+        inlier, tried = orj.ransac(*args[:2], _plain(n), *args[2:4], lambda k, r=rows: r[:k],
                                    *args[5:7], len(rows), T_first)
         ref_inlier, ref_tried = _reference_ransac(*args)
         assert np.array_equal(inlier, ref_inlier) and tried == ref_tried
         assert np.array_equal(inlier, truth) == finds_them
         if finds_them:
             assert tried < 100  # 37% outliers: eq. 6.12 asks for about 45 hypotheses
+
+
+def test_an_error_along_an_uncertain_depth_is_judged_whitened():
+    """A match off along the direction its point's depth is uncertain in passes the
+    threshold when whitened for it (as the pose refinement weights it), one off across that
+    direction does not; unwhitened both fail."""
+    pos_w = np.array([[0.0, 0.0, 2.0], [0.2, 0.1, 2.0]])
+    obs = pos_w[:, :2] / pos_w[:, 2:] + np.array([[0.02, 0.0], [0.0, 0.02]])
+    beta = 1.0 - 1.0 / np.sqrt(1.0 + 10.0 ** 2)  # a depth interval spanning 10 pixel sigmas
+    along_x = np.eye(2) - beta * np.outer([1.0, 0.0], [1.0, 0.0])  # depth_whitening's form
+    whiten = np.stack([along_x, along_x])
+    thr2 = 0.01 ** 2
+    assert np.array_equal(orj.squared_errors(pos_w, obs, whiten, np.eye(4)) < thr2,
+                          [True, False])
+    assert not np.any(orj.squared_errors(pos_w, obs, _plain(2), np.eye(4)) < thr2)
+    assert orj.count_within(pos_w, obs, whiten, np.eye(4), thr2, 0) == 1
 
 
 def _mover(frame: np.ndarray, i: int, tex: np.ndarray) -> np.ndarray:

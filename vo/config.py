@@ -82,6 +82,12 @@ class TrackerConfig:
     ransac_reference_width_px: int = 640
     ransac_probability: float = 0.99
     ransac_max_hypotheses: int = 100
+    # RANSAC and the rescue judge a match's error whitened for its point's depth uncertainty
+    # (as the pose refinement does): candidates still uncertain in depth are not rejected for
+    # lying along their epipolar segments (kitti00 at 5 Hz keeps its map, 0.66 -> 0.28 m at
+    # 10 Hz), but neither are movers whose depth never converges (walkers, the sliding board:
+    # tests/test_vo_outlier_rejection.py), hence off (RESULTS.md: tracker-ransac-whitened)
+    ransac_depth_whitening: bool = False
     # with outlier rejection, a point matched but rejected this many tracked frames in a row
     # leaves the map (a person who stood while mapped and walked off: its many finds kept it
     # first in its grid cell); 10 kept such points too long (RESULTS.md:

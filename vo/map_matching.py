@@ -94,7 +94,8 @@ class MapMatcher:
         rejecting = cfg.outlier_rejection and len(ids) > outlier_rejection.SUBSET
         if rejecting:
             t0 = time.perf_counter()
-            use, m.n_hypotheses = self._reject_outliers(frame, ids, obs, levels, whole[0])
+            use, m.n_hypotheses = self._reject_outliers(frame, ids, obs, levels, whiten,
+                                                         whole[0])
             timings["ransac"] = ms_since(t0)
             if use.sum() < MIN_POSE_MATCHES:
                 # no consensus within image pixels (blurred matches found on coarse levels):
@@ -105,7 +106,7 @@ class MapMatcher:
         T, H, sigma, err = fit(use)
         if rejecting:
             # rescue: outliers within a wider threshold of the inlier pose join them
-            use = self._errors(ids, obs, T) * self.focal < self.rescue_px
+            use = self._errors(ids, obs, whiten, T) * self.focal < self.rescue_px
             T, H, sigma, err = fit(use)
         m.T, m.H, m.sigma = T, H, sigma
         m.inlier[use] = err * self.focal < cfg.reprojection_inlier_px
@@ -189,13 +190,23 @@ class MapMatcher:
         search = self.map.points.status[idx] == CANDIDATE
         return self.reprojector.run(frame, self.map, idx, search)
 
-    def _errors(self, ids: np.ndarray, obs: np.ndarray, T_c_w: np.ndarray) -> np.ndarray:
-        """Reprojection errors (normalised plane) of matches (normalised obs) at pose T_c_w."""
+    def _errors(self, ids: np.ndarray, obs: np.ndarray, whiten: np.ndarray,
+                T_c_w: np.ndarray) -> np.ndarray:
+        """Reprojection errors (normalised plane) of matches (normalised obs) at pose T_c_w,
+        whitened as RANSAC judges them."""
         pos = np.ascontiguousarray(self.map.points.pos_w[ids])
-        return np.sqrt(outlier_rejection.squared_errors(pos, obs, T_c_w))
+        return np.sqrt(outlier_rejection.squared_errors(pos, obs, self._judged(whiten), T_c_w))
+
+    def _judged(self, whiten: np.ndarray) -> np.ndarray:
+        """The whitening RANSAC and the rescue judge errors by: the depth whitening, or none
+        without ransac_depth_whitening."""
+        if self.config.ransac_depth_whitening:
+            return whiten
+        return np.broadcast_to(np.eye(2), whiten.shape).copy()
 
     def _reject_outliers(self, frame: Frame, ids: np.ndarray, obs: np.ndarray,
-                         levels: np.ndarray, T_all: np.ndarray) -> tuple[np.ndarray, int]:
+                         levels: np.ndarray, whiten: np.ndarray,
+                         T_all: np.ndarray) -> tuple[np.ndarray, int]:
         """RANSAC inliers (6.8) among the matches, hypotheses from frame's prior pose; and
         how many hypotheses were fitted. T_all, the robust pose from all matches, is the first
         hypothesis: 5-point fits to matches a few pixels off agree with few others (kitti00
@@ -203,10 +214,9 @@ class MapMatcher:
         cfg = self.config
         draw = partial(outlier_rejection.random_subsets, len(ids), seed=cfg.seed + frame.id)
         inlier, tried = outlier_rejection.ransac(
-            np.ascontiguousarray(self.map.points.pos_w[ids]), obs, 1.0 / 2.0 ** levels,
-            frame.T_c_w, draw,
-            self.ransac_px / self.focal, cfg.ransac_probability,
-            cfg.ransac_max_hypotheses, T_all)
+            np.ascontiguousarray(self.map.points.pos_w[ids]), obs, self._judged(whiten),
+            1.0 / 2.0 ** levels, frame.T_c_w, draw, self.ransac_px / self.focal,
+            cfg.ransac_probability, cfg.ransac_max_hypotheses, T_all)
         return inlier, int(tried)
 
     def _forget_rejected(self, ids: np.ndarray, inlier: np.ndarray) -> None:

@@ -7,6 +7,11 @@ level), but inliers are judged by the reprojection error in the image, as the th
 thresholds are image pixels divided by the focal length. Judged at the match's level, a 2 px
 threshold let 8 px through at level 2, and people mapped while they stood kept passing as
 inliers as they walked off.
+
+Each error is whitened by a 2x2 matrix per match: identity by default, or (config
+ransac_depth_whitening) the pose optimiser's depth whitening (pose_optimizer.depth_whitening),
+under which a point whose depth the filter has not yet narrowed may lie anywhere along its
+epipolar segment and only its error across the segment is held to the threshold in full.
 """
 
 from __future__ import annotations
@@ -22,24 +27,27 @@ HYPOTHESIS_ITERATIONS = 5
 
 
 @numba.njit(cache=True, nogil=True)
-def _squared_error(pos_w, obs, T_c_w, i):
-    """Match i's squared reprojection error (normalised plane) at T_c_w (inf behind the
-    camera)."""
+def _squared_error(pos_w, obs, whiten, T_c_w, i):
+    """Match i's squared reprojection error (normalised plane) at T_c_w, whitened by its 2x2
+    matrix (inf behind the camera)."""
     X, Y, Z = transform(T_c_w, pos_w[i, 0], pos_w[i, 1], pos_w[i, 2])
     if Z <= 1e-9:
         return np.inf
     ex = obs[i, 0] - X / Z
     ey = obs[i, 1] - Y / Z
-    return ex * ex + ey * ey
+    W = whiten[i]
+    wx = W[0, 0] * ex + W[0, 1] * ey
+    wy = W[1, 0] * ex + W[1, 1] * ey
+    return wx * wx + wy * wy
 
 
 @numba.njit(cache=True, nogil=True)
-def squared_errors(pos_w, obs, T_c_w):
-    """Per match the squared reprojection error (normalised plane) at T_c_w (inf behind the
-    camera)."""
+def squared_errors(pos_w, obs, whiten, T_c_w):
+    """Per match the squared whitened reprojection error (normalised plane) at T_c_w (inf
+    behind the camera)."""
     out = np.empty(pos_w.shape[0])
     for i in range(pos_w.shape[0]):
-        out[i] = _squared_error(pos_w, obs, T_c_w, i)
+        out[i] = _squared_error(pos_w, obs, whiten, T_c_w, i)
     return out
 
 
@@ -89,14 +97,14 @@ def fit_buffers():
 
 
 @numba.njit(cache=True, nogil=True)
-def count_within(pos_w, obs, T_c_w, thr2, enough):
-    """How many matches reproject within sqrt(thr2) (normalised plane) at T_c_w, or -1 as
-    soon as fewer than `enough` can (a hypothesis that cannot beat the best is not scored to
-    the end)."""
+def count_within(pos_w, obs, whiten, T_c_w, thr2, enough):
+    """How many matches reproject within sqrt(thr2) (normalised plane, whitened) at T_c_w, or
+    -1 as soon as fewer than `enough` can (a hypothesis that cannot beat the best is not scored
+    to the end)."""
     n = pos_w.shape[0]
     count = 0
     for i in range(n):
-        if _squared_error(pos_w, obs, T_c_w, i) < thr2:
+        if _squared_error(pos_w, obs, whiten, T_c_w, i) < thr2:
             count += 1
         if count + n - 1 - i < enough:
             return -1
@@ -114,20 +122,21 @@ def hypotheses_needed(n_inliers, n, p, cap):
     return min(cap, int(np.ceil(np.log(1.0 - p) / np.log(1.0 - w))))
 
 
-def ransac(pos_w, obs, scale, T_prior, draw, threshold, p, cap, T_first):
+def ransac(pos_w, obs, whiten, scale, T_prior, draw, threshold, p, cap, T_first):
     """Inlier mask of the best hypothesis, T_first (a pose fitted to all matches) or one fitted
-    to a row of `draw(k)` (k rows of SUBSET match indices), and the number of rows tried. As
+    to a row of `draw(k)` (k rows of SUBSET match indices), and the number of rows tried;
+    errors whitened by `whiten` (N, 2, 2). As
     many rows are drawn as eq. 6.12 asks after T_first (at most `cap`): better hypotheses only
     lower that number, so they are all there is to try (vamr needs 8 at the median; drawing
     all of the cap cost 0.2 ms a frame)."""
     thr2 = threshold * threshold
-    best = squared_errors(pos_w, obs, T_first) < thr2
+    best = squared_errors(pos_w, obs, whiten, T_first) < thr2
     needed = hypotheses_needed(best.sum(), pos_w.shape[0], p, cap)
-    return _try_subsets(pos_w, obs, scale, T_prior, draw(needed), thr2, p, cap, best)
+    return _try_subsets(pos_w, obs, whiten, scale, T_prior, draw(needed), thr2, p, cap, best)
 
 
 @numba.njit(cache=True, nogil=True)
-def _try_subsets(pos_w, obs, scale, T_prior, subsets, thr2, p, cap, best):
+def _try_subsets(pos_w, obs, whiten, scale, T_prior, subsets, thr2, p, cap, best):
     """RANSAC's loop over the rows of `subsets` while eq. 6.12 still asks for hypotheses,
     from the inlier mask `best`: the best mask and the number of rows tried."""
     n = pos_w.shape[0]
@@ -138,9 +147,9 @@ def _try_subsets(pos_w, obs, scale, T_prior, subsets, thr2, p, cap, best):
     while tried < needed:
         T = fit_subset(pos_w, obs, scale, subsets[tried], T_prior, HYPOTHESIS_ITERATIONS, work)
         tried += 1
-        count = count_within(pos_w, obs, T, thr2, best_count + 1)
+        count = count_within(pos_w, obs, whiten, T, thr2, best_count + 1)
         if count > best_count:
-            best, best_count = squared_errors(pos_w, obs, T) < thr2, count
+            best, best_count = squared_errors(pos_w, obs, whiten, T) < thr2, count
             needed = min(needed, hypotheses_needed(count, n, p, cap))
     return best, tried
 
