@@ -86,3 +86,10 @@ def test_frames_csv_is_for_one_virtual_clock_flight(tmp_path, capsys):
     assert "--frames-csv writes one virtual-clock flight" in capsys.readouterr().err
     assert main(["fly", "--realtime", "--frames-csv", out]) == 2
     assert not (tmp_path / "f.csv").exists()
+
+
+def test_vibration_spread_is_for_the_virtual_clock_loop_and_a_share(capsys):
+    for args in (["--vibration-spread", "0.5"], ["--vibration-spread", "-0.1"],
+                 ["--vibration-spread", "0.03", "--realtime"]):
+        assert main(["fly", *args]) == 2
+        assert "--vibration-spread is the virtual-clock loop's IMU" in capsys.readouterr().err

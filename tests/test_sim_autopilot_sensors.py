@@ -52,6 +52,27 @@ def test_vibration_is_the_documented_normal_vibe_and_the_filter_takes_most_of_it
     assert filtered[100:].std(axis=0).max() < 2.5
 
 
+def test_a_tone_locked_to_the_loop_folds_into_an_offset_one_spread_over_the_motors_does_not():
+    """Sampled every 10th 400 Hz tick (a 40 Hz stream), the filtered accelerometer's 80 Hz
+    vibration (400 Hz / 5) lands on the same phases every time: a steady offset of up to
+    1 m/s^2. With each motor's frequency its own (motor_hz_spread) the offset averages out."""
+    def stream_offset(spread: float, seed: int) -> np.ndarray:
+        imu = Imu(ImuSpec(motor_hz_spread=spread), np.random.default_rng(seed), 400.0, 20.0,
+                  20.0)
+        force = np.array([0.0, 0.0, -GRAVITY])
+        streamed = []
+        for k in range(400 * 20):
+            imu.sample(force, np.zeros(3), np.ones(4))
+            if k % 10 == 0:
+                streamed.append(imu.accel.copy())
+        return np.mean(streamed[40:], axis=0) - force - imu.accel_bias
+
+    assert max(np.abs(stream_offset(0.0, seed)).max() for seed in (1, 3)) > 0.5
+    assert max(np.abs(stream_offset(0.03, seed)).max() for seed in (1, 2, 3)) < 0.05
+    assert np.array_equal(Imu(ImuSpec(), np.random.default_rng(1), 400.0, 20.0, 20.0)._motor_hz,
+                          np.full(4, ImuSpec().hover_motor_hz))
+
+
 def test_imu_clips_at_its_range():
     imu = Imu(ImuSpec(), np.random.default_rng(2), 400.0, 20.0, 20.0)
     raw, _ = samples(imu, 10, force=np.array([0.0, 0.0, -30 * GRAVITY]))
@@ -121,3 +142,5 @@ def test_the_vehicles_barometer_is_the_one_its_dynamics_name():
     params = ParamStore({**ardupilot_specs(Release.MASTER_2025), **flight_specs()}, {})
     sensors = FlightSensors(vehicle, params, seed=0)
     assert sensors.baro.spec.ground_effect_m == 3.0
+    vehicle = FlyingVehicle(Dynamics(imu=ImuSpec(motor_hz_spread=0.05)))
+    assert FlightSensors(vehicle, params, seed=0).imu.spec.motor_hz_spread == 0.05

@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from sim.autopilot.airframe import Airframe
 from sim.autopilot.barometer import BaroSpec
+from sim.autopilot.imu import ImuSpec
 from sim.autopilot.multicopter import Multicopter
 from sim.autopilot.rangefinder import RangefinderSpec
 from sim.autopilot.wind import Wind, WindField
@@ -36,7 +37,8 @@ class Dynamics:
     above it). `terrain` optionally replaces the flat ground for the rangefinder (a synthetic
     world's ray caster); the physics always stands on the flat ground. `rangefinder` None:
     the vehicle has none (no DISTANCE_SENSOR); `baro` its barometer (the rotors' wash and
-    ground effect on it); `seed` draws its sensors' errors and noise."""
+    ground effect on it), `imu` its flight controller's IMU; `seed` draws its sensors' errors
+    and noise."""
 
     north_m: float = 0.0
     east_m: float = 0.0
@@ -47,6 +49,7 @@ class Dynamics:
     terrain: RangeFunction | None = None
     rangefinder: RangefinderSpec | None = field(default_factory=RangefinderSpec)
     baro: BaroSpec = field(default_factory=BaroSpec)
+    imu: ImuSpec = field(default_factory=ImuSpec)
     seed: int = 0
 
     def hardware_params(self) -> dict[str, float]:

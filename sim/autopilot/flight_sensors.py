@@ -14,7 +14,7 @@ from sim.autopilot.ahrs_error import AhrsError
 from sim.autopilot.airframe import GRAVITY
 from sim.autopilot.barometer import Barometer
 from sim.autopilot.dynamics import FlyingVehicle
-from sim.autopilot.imu import Imu, ImuSpec
+from sim.autopilot.imu import Imu
 from sim.autopilot.param_store import ParamStore
 from sim.autopilot.rangefinder import Rangefinder
 from sim.autopilot.sensing import Reading
@@ -30,7 +30,7 @@ class FlightSensors:
         rng = np.random.default_rng(seed)
         self.vehicle = vehicle
         self.params = params
-        self.imu = Imu(ImuSpec(), rng, LOOP_HZ, params.get("INS_ACCEL_FILTER"),
+        self.imu = Imu(vehicle.dynamics.imu, rng, LOOP_HZ, params.get("INS_ACCEL_FILTER"),
                        params.get("INS_GYRO_FILTER"))
         self.ahrs = AhrsError(self.imu.accel_bias, rng)
         self.baro = Barometer(vehicle.dynamics.baro, rng)

@@ -36,6 +36,11 @@ class ImuSpec:
     # hover (INS_HNTCH_FREQ's default), scaled with the square root of thrust
     vibration_rms: float = 15.0
     hover_motor_hz: float = 80.0
+    # each motor's hover frequency off hover_motor_hz by a seeded N(0, this) share (motors and
+    # props differ; ArduPilot's per-motor harmonic notch, INS_HNTCH_OPTS 2, is for that): 0
+    # keeps all four at 400 Hz / 5, a tone the 50 Hz streams fold into a steady vertical offset
+    # (RESULTS.md: fly-vibration-spread)
+    motor_hz_spread: float = 0.0
 
 
 class Lowpass2:
@@ -76,6 +81,9 @@ class Imu:
         self._phase = rng.uniform(0.0, 2 * math.pi, 4)
         directions = rng.normal(size=(4, 3))
         self._directions = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+        self._motor_hz = spec.hover_motor_hz * (
+            1.0 + (rng.normal(0.0, spec.motor_hz_spread, 4) if spec.motor_hz_spread > 0.0
+                   else np.zeros(4)))
         self._accel_lpf = Lowpass2(accel_filter_hz, sample_hz)
         self._gyro_lpf = Lowpass2(gyro_filter_hz, sample_hz)
         self.accel = np.array([0.0, 0.0, -GRAVITY])
@@ -105,7 +113,7 @@ class Imu:
         """Each motor shakes the board along its own direction at its rotation frequency, with
         an amplitude growing with its speed squared (thrust)."""
         ratio = np.clip(thrust_ratio, 0.0, None)
-        freq = self.spec.hover_motor_hz * np.sqrt(ratio)
+        freq = self._motor_hz * np.sqrt(ratio)
         self._phase = (self._phase + 2 * math.pi * freq * self.dt) % (2 * math.pi)
         # four motors of equal share: rms per axis = vibration_rms at hover
         amplitude = self.spec.vibration_rms * math.sqrt(2.0 * 3.0 / 4.0) * ratio

@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from sim.autopilot.barometer import BaroSpec
 from sim.autopilot.dynamics import Dynamics
+from sim.autopilot.imu import ImuSpec
 from sim.autopilot.options import configured_options
 from sim.autopilot.simulator import make_model
 from sim.flight.flight_run import Timing
@@ -58,10 +59,11 @@ class AutopilotSide:
 
     def __init__(self, mission: Mission, world: FlightWorld, seed: int, timing: Timing,
                  without: tuple[str, ...] = (), now: float = 0.0,
-                 on_step: Callable[[str], None] | None = None, baro: BaroSpec | None = None):
+                 on_step: Callable[[str], None] | None = None, baro: BaroSpec | None = None,
+                 imu: ImuSpec | None = None):
         self.now = now
         options = configured_options(by_parameter=True, seed=seed, dynamics=Dynamics(
-            terrain=world.range, baro=baro or BaroSpec()))
+            terrain=world.range, baro=baro or BaroSpec(), imu=imu or ImuSpec()))
         self.model = make_model(options, None, now)
         self.hidden = {name for kind in without for name in SENSOR_STREAMS[kind]}
         self.gcs = GroundStation(lambda data: self._from_gcs.put(self.now, data))

@@ -16,6 +16,7 @@ from daemon.config import Config, load_config, replace
 from daemon.run_command import setup_logging
 from sdvl.errors import InputError
 from sim.autopilot.barometer import BaroSpec
+from sim.autopilot.imu import ImuSpec
 from sim.flight.flight_run import FlightRun, Timing
 from sim.flight.frames_csv import write_flight_frames
 from sim.flight.loop import ClosedLoop
@@ -53,6 +54,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="how low the simulated barometer reads at the ground under hover "
                              f"thrust (metres; default {BaroSpec().ground_effect_m:g}, ArduPilot "
                              "SITL's autotest; flown airframes 0.4 to 11)")
+    parser.add_argument("--vibration-spread", type=float, default=None, metavar="S",
+                        help="each motor's vibration frequency off the hover one by a seeded "
+                             "N(0, S) share (default 0: all four at 400 Hz / 5, a tone the IMU "
+                             "streams fold into a steady offset; motors and props differ)")
     parser.add_argument("--depth", action="store_true",
                         help="RGB-D: the world's depth camera (the preset's sensor model, "
                              "sim/synth/depth_sensor.py) feeds the service (camera.depth)")
@@ -97,8 +102,10 @@ def fly(mission: Mission, config: Config, seed: int, args: argparse.Namespace) -
         capture_to_send_s=args.latency_ms / 1e3)
     baro = (None if args.baro_ground_effect is None
             else BaroSpec(ground_effect_m=args.baro_ground_effect))
+    imu = (None if args.vibration_spread is None
+           else ImuSpec(motor_hz_spread=args.vibration_spread))
     return ClosedLoop(mission, config, seed, size, without, timing,
-                      on_step=prefix and step_printer(prefix), baro=baro).run()
+                      on_step=prefix and step_printer(prefix), baro=baro, imu=imu).run()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -108,6 +115,9 @@ def run(args: argparse.Namespace) -> int:
                          "flight measures the machine, so it flies alone")
     if args.baro_ground_effect is not None and (args.realtime or args.baro_ground_effect < 0):
         raise InputError("--baro-ground-effect is the virtual-clock loop's barometer (>= 0 m)")
+    if args.vibration_spread is not None and (args.realtime
+                                              or not 0.0 <= args.vibration_spread <= 0.3):
+        raise InputError("--vibration-spread is the virtual-clock loop's IMU (0 to 0.3)")
     if args.load and not args.realtime:
         raise InputError("--load loads the machine for a --realtime flight; add --realtime")
     if args.latency_ms is not None and (args.realtime or args.latency_ms < 0):

@@ -25,6 +25,7 @@ import numpy as np
 from daemon.config import Config, OriginConfig, replace
 from daemon.run_command import tracker_factory
 from sim.autopilot.barometer import BaroSpec
+from sim.autopilot.imu import ImuSpec
 from sim.flight.autopilot_side import AutopilotSide, DelayLine
 from sim.flight.companion import LockstepCompanion, Tracked
 from sim.flight.flight_run import FlightRun, Timing
@@ -55,14 +56,15 @@ class ClosedLoop:
     def __init__(self, mission: Mission, config: Config, seed: int = 0,
                  size: tuple[int, int] | None = None, without: tuple[str, ...] = (),
                  timing: Timing | None = None, make_tracker: Callable | None = None,
-                 on_step: Callable[[str], None] | None = None, baro: BaroSpec | None = None):
+                 on_step: Callable[[str], None] | None = None, baro: BaroSpec | None = None,
+                 imu: ImuSpec | None = None):
         self.mission, self.seed, self.without = mission, seed, without
         self.timing = tm = timing or Timing()
         self.world = FlightWorld.of_preset(mission.world, seed, size)
         self.config = lockstep_config(flight_config(config, self.world))
         self.now = 0.0
         self.autopilot = AutopilotSide(mission, self.world, seed, tm, without, self.now,
-                                       on_step, baro)
+                                       on_step, baro, imu)
         self.to_autopilot = DelayLine(tm.link_s,
                                       lambda data: self.autopilot.from_companion(data, self.now))
         self.companion = LockstepCompanion(
