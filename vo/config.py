@@ -88,6 +88,9 @@ class TrackerConfig:
     # 10 Hz), but neither are movers whose depth never converges (walkers, the sliding board:
     # tests/test_vo_outlier_rejection.py), hence off (RESULTS.md: tracker-ransac-whitened)
     ransac_depth_whitening: bool = False
+    # ... with it, above 0: only candidates whose depth filter holds them at least this likely
+    # inliers (a / (a + b)) are judged whitened (a mover's depth never converges)
+    ransac_whitening_min_inlier: float = 0.0
     # with outlier rejection, a point matched but rejected this many tracked frames in a row
     # leaves the map (a person who stood while mapped and walked off: its many finds kept it
     # first in its grid cell); 10 kept such points too long (RESULTS.md:

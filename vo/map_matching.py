@@ -195,14 +195,25 @@ class MapMatcher:
         """Reprojection errors (normalised plane) of matches (normalised obs) at pose T_c_w,
         whitened as RANSAC judges them."""
         pos = np.ascontiguousarray(self.map.points.pos_w[ids])
-        return np.sqrt(outlier_rejection.squared_errors(pos, obs, self._judged(whiten), T_c_w))
+        return np.sqrt(outlier_rejection.squared_errors(pos, obs, self._judged(ids, whiten),
+                                                        T_c_w))
 
-    def _judged(self, whiten: np.ndarray) -> np.ndarray:
-        """The whitening RANSAC and the rescue judge errors by: the depth whitening, or none
-        without ransac_depth_whitening."""
-        if self.config.ransac_depth_whitening:
+    def _judged(self, ids: np.ndarray, whiten: np.ndarray) -> np.ndarray:
+        """The whitening RANSAC and the rescue judge the matches of points ids by: none
+        without ransac_depth_whitening; with it the depth whitening, of every match or (a
+        ransac_whitening_min_inlier above 0) only of candidates the depth filter holds at
+        least that likely inliers."""
+        cfg = self.config
+        plain = np.broadcast_to(np.eye(2), whiten.shape).copy()
+        if not cfg.ransac_depth_whitening:
+            return plain
+        if cfg.ransac_whitening_min_inlier <= 0.0:
             return whiten
-        return np.broadcast_to(np.eye(2), whiten.shape).copy()
+        pts = self.map.points
+        likely = pts.a[ids] >= cfg.ransac_whitening_min_inlier * (pts.a[ids] + pts.b[ids])
+        keep = likely & (pts.status[ids] == CANDIDATE)
+        plain[keep] = whiten[keep]
+        return plain
 
     def _reject_outliers(self, frame: Frame, ids: np.ndarray, obs: np.ndarray,
                          levels: np.ndarray, whiten: np.ndarray,
@@ -214,7 +225,7 @@ class MapMatcher:
         cfg = self.config
         draw = partial(outlier_rejection.random_subsets, len(ids), seed=cfg.seed + frame.id)
         inlier, tried = outlier_rejection.ransac(
-            np.ascontiguousarray(self.map.points.pos_w[ids]), obs, self._judged(whiten),
+            np.ascontiguousarray(self.map.points.pos_w[ids]), obs, self._judged(ids, whiten),
             1.0 / 2.0 ** levels, frame.T_c_w, draw, self.ransac_px / self.focal,
             cfg.ransac_probability, cfg.ransac_max_hypotheses, T_all)
         return inlier, int(tried)
