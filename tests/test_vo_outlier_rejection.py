@@ -251,3 +251,33 @@ def test_rejection_keeps_people_who_walk_off_out_of_the_pose():
     # with the inlier-count keyframes)
     assert on_with < 0.6 * on_without
     assert with_rejection <= 4.0 * runs["empty"][0]
+
+
+def test_the_gate_whitens_only_candidates_likely_inliers():
+    """ransac_whitening_min_inlier: of three matches with the same whitening, the candidate the
+    depth filter holds likely an inlier is judged whitened; the unlikely candidate and the
+    converged point are judged plainly; without the option all are whitened, and without
+    ransac_depth_whitening none."""
+    from calib.camera import CameraModel
+    from vo.map import CONVERGED, Map
+    from vo.map_matching import MapMatcher
+    from vo.reprojector import Reprojector
+
+    camera = CameraModel(64, 48, 50.0, 50.0, 31.5, 23.5)
+    map_ = Map(64, 48, 3, 4)
+    ids = map_.points.add(0, np.zeros(3), np.zeros(3), np.zeros(3, np.int64),
+                          np.tile([0.0, 0.0, 1.0], (3, 1)), np.ones(3), np.full(3, 0.5),
+                          np.ones(3), 10.0, 10.0, np.eye(4))
+    map_.points.a[ids], map_.points.b[ids] = [8.0, 2.0, 8.0], [2.0, 8.0, 2.0]  # 0.8, 0.2, 0.8
+    map_.points.status[ids[2]] = CONVERGED
+    whiten = np.tile(np.diag([0.1, 1.0]), (3, 1, 1))
+
+    def judged(**options):
+        config = TrackerConfig(**options)
+        return MapMatcher(camera, config, map_, Reprojector(camera, config))._judged(ids, whiten)
+
+    gated = judged(ransac_depth_whitening=True, ransac_whitening_min_inlier=0.5)
+    assert np.array_equal(gated[0], whiten[0])
+    assert np.array_equal(gated[1:], np.tile(np.eye(2), (2, 1, 1)))
+    assert np.array_equal(judged(ransac_depth_whitening=True), whiten)
+    assert np.array_equal(judged(), np.tile(np.eye(2), (3, 1, 1)))
