@@ -84,12 +84,14 @@ class TrackerConfig:
     ransac_max_hypotheses: int = 100
     # RANSAC and the rescue judge a match's error whitened for its point's depth uncertainty
     # (as the pose refinement does): candidates still uncertain in depth are not rejected for
-    # lying along their epipolar segments (kitti00 at 5 Hz keeps its map, 0.66 -> 0.28 m at
-    # 10 Hz), but neither are movers whose depth never converges (walkers, the sliding board:
-    # tests/test_vo_outlier_rejection.py), hence off (RESULTS.md: tracker-ransac-whitened)
+    # lying along their epipolar segments (kitti00 at 5 Hz keeps its map; at 10 Hz better on 7
+    # of 10 seeds, one ran off to 6.4 m), but neither are movers whose depth never converges
+    # (walkers, the sliding board: tests/test_vo_outlier_rejection.py), hence off (RESULTS.md:
+    # tracker-ransac-whitened)
     ransac_depth_whitening: bool = False
     # ... with it, above 0: only candidates whose depth filter holds them at least this likely
-    # inliers (a / (a + b)) are judged whitened (a mover's depth never converges)
+    # inliers (a / (a + b)) are judged whitened; 0.5 kept movers out, helped kitti00 (6 of 10
+    # seeds), not tum or the synthetic presets (RESULTS.md: tracker-ransac-gate-*)
     ransac_whitening_min_inlier: float = 0.0
     # with outlier rejection, a point matched but rejected this many tracked frames in a row
     # leaves the map (a person who stood while mapped and walked off: its many finds kept it

@@ -94,7 +94,8 @@ class MapMatcher:
         rejecting = cfg.outlier_rejection and len(ids) > outlier_rejection.SUBSET
         if rejecting:
             t0 = time.perf_counter()
-            use, m.n_hypotheses = self._reject_outliers(frame, ids, obs, levels, whiten,
+            judged = self._judged(ids, whiten)  # RANSAC's and the rescue's
+            use, m.n_hypotheses = self._reject_outliers(frame, ids, obs, levels, judged,
                                                          whole[0])
             timings["ransac"] = ms_since(t0)
             if use.sum() < MIN_POSE_MATCHES:
@@ -106,7 +107,7 @@ class MapMatcher:
         T, H, sigma, err = fit(use)
         if rejecting:
             # rescue: outliers within a wider threshold of the inlier pose join them
-            use = self._errors(ids, obs, whiten, T) * self.focal < self.rescue_px
+            use = self._errors(ids, obs, judged, T) * self.focal < self.rescue_px
             T, H, sigma, err = fit(use)
         m.T, m.H, m.sigma = T, H, sigma
         m.inlier[use] = err * self.focal < cfg.reprojection_inlier_px
@@ -190,13 +191,12 @@ class MapMatcher:
         search = self.map.points.status[idx] == CANDIDATE
         return self.reprojector.run(frame, self.map, idx, search)
 
-    def _errors(self, ids: np.ndarray, obs: np.ndarray, whiten: np.ndarray,
+    def _errors(self, ids: np.ndarray, obs: np.ndarray, judged: np.ndarray,
                 T_c_w: np.ndarray) -> np.ndarray:
         """Reprojection errors (normalised plane) of matches (normalised obs) at pose T_c_w,
-        whitened as RANSAC judges them."""
+        whitened by `judged` (_judged) as RANSAC judges them."""
         pos = np.ascontiguousarray(self.map.points.pos_w[ids])
-        return np.sqrt(outlier_rejection.squared_errors(pos, obs, self._judged(ids, whiten),
-                                                        T_c_w))
+        return np.sqrt(outlier_rejection.squared_errors(pos, obs, judged, T_c_w))
 
     def _judged(self, ids: np.ndarray, whiten: np.ndarray) -> np.ndarray:
         """The whitening RANSAC and the rescue judge the matches of points ids by: none
@@ -216,7 +216,7 @@ class MapMatcher:
         return plain
 
     def _reject_outliers(self, frame: Frame, ids: np.ndarray, obs: np.ndarray,
-                         levels: np.ndarray, whiten: np.ndarray,
+                         levels: np.ndarray, judged: np.ndarray,
                          T_all: np.ndarray) -> tuple[np.ndarray, int]:
         """RANSAC inliers (6.8) among the matches, hypotheses from frame's prior pose; and
         how many hypotheses were fitted. T_all, the robust pose from all matches, is the first
@@ -225,7 +225,7 @@ class MapMatcher:
         cfg = self.config
         draw = partial(outlier_rejection.random_subsets, len(ids), seed=cfg.seed + frame.id)
         inlier, tried = outlier_rejection.ransac(
-            np.ascontiguousarray(self.map.points.pos_w[ids]), obs, self._judged(ids, whiten),
+            np.ascontiguousarray(self.map.points.pos_w[ids]), obs, judged,
             1.0 / 2.0 ** levels, frame.T_c_w, draw, self.ransac_px / self.focal,
             cfg.ransac_probability, cfg.ransac_max_hypotheses, T_all)
         return inlier, int(tried)

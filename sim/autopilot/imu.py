@@ -81,9 +81,10 @@ class Imu:
         self._phase = rng.uniform(0.0, 2 * math.pi, 4)
         directions = rng.normal(size=(4, 3))
         self._directions = directions / np.linalg.norm(directions, axis=1, keepdims=True)
-        self._motor_hz = spec.hover_motor_hz * (
-            1.0 + (rng.normal(0.0, spec.motor_hz_spread, 4) if spec.motor_hz_spread > 0.0
-                   else np.zeros(4)))
+        # drawn only with a spread: the default flights keep every later draw as it was
+        spread = (rng.normal(0.0, spec.motor_hz_spread, 4) if spec.motor_hz_spread > 0.0
+                  else np.zeros(4))
+        self._motor_hz = spec.hover_motor_hz * (1.0 + spread)
         self._accel_lpf = Lowpass2(accel_filter_hz, sample_hz)
         self._gyro_lpf = Lowpass2(gyro_filter_hz, sample_hz)
         self.accel = np.array([0.0, 0.0, -GRAVITY])
