@@ -7,12 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.linalg import expm
+from scipy.spatial.transform import Rotation
 
 from vo.map_matching import _count_found_missed
 from vo.matcher import inverse2
 from vo.normal_equations import solve_spd
 from vo.outlier_rejection import SUBSET, random_subsets
-from vo.se3 import adjoint, compose, exp_se3, inv_se3, orthonormalized, skew
+from vo.se3 import adjoint, compose, exp_se3, exp_so3, inv_se3, orthonormalized, rotvec, skew
 
 
 def _twist_matrix(xi: np.ndarray) -> np.ndarray:
@@ -32,6 +33,28 @@ def test_rigid_transforms_against_matrix_algebra(size):
         assert np.allclose(inv_se3(T), np.linalg.inv(T), atol=1e-12)
         assert np.allclose(compose(T, U), T @ U, atol=1e-12)
         assert np.allclose(adjoint(T) @ eta, _vee(T @ _twist_matrix(eta) @ np.linalg.inv(T)))
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-12, 1e-7, 1e-3, 0.5, 2.0, 3.0, np.pi - 1e-6])
+def test_rotations_against_scipy(angle):
+    """exp_so3 and rotvec against scipy's Rotation, small angles to near pi; rotvec also
+    through the four branches of its quaternion (each diagonal entry the largest)."""
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        axis = rng.normal(size=3)
+        w = angle * axis / np.linalg.norm(axis)
+        R = Rotation.from_rotvec(w).as_matrix()
+        assert np.allclose(exp_so3(w), R, rtol=0, atol=1e-15)
+        assert np.allclose(rotvec(R), Rotation.from_matrix(R).as_rotvec(), rtol=1e-9,
+                           atol=1e-15)
+        assert np.allclose(exp_so3(rotvec(R)), R, rtol=0, atol=1e-15)
+
+
+def test_rotvec_at_pi_gives_a_rotation_that_turns_back_the_same():
+    for axis in np.eye(3):
+        R = Rotation.from_rotvec(np.pi * axis).as_matrix()
+        assert np.allclose(np.abs(rotvec(R)), np.pi * axis, atol=1e-12)
+        assert np.allclose(exp_so3(rotvec(R)), R, atol=1e-12)
 
 
 def _vee(M: np.ndarray) -> np.ndarray:

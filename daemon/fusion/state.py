@@ -33,11 +33,11 @@ from __future__ import annotations
 import enum
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from daemon.fusion.accel_scale import AccelScale
 from daemon.fusion.climb_scale import ClimbScale
 from daemon.fusion.config import FusionConfig
+from vo.se3 import exp_so3, rotvec
 
 POS, VEL, BIAS, ANCHOR, THETA = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12),
                                  slice(13, 16))
@@ -57,12 +57,12 @@ def skew(v: np.ndarray) -> np.ndarray:
 
 def rotvec_to_matrix(v: np.ndarray) -> np.ndarray:
     """exp([v]x): the rotation matrix of a rotation vector."""
-    return Rotation.from_rotvec(v).as_matrix()
+    return exp_so3(np.asarray(v, dtype=np.float64))
 
 
 def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
     """log(R) as a rotation vector."""
-    return Rotation.from_matrix(R).as_rotvec()
+    return rotvec(np.asarray(R, dtype=np.float64))
 
 
 class ScaleSource(enum.Enum):
