@@ -35,3 +35,26 @@ def test_a_disarmed_vehicle_stands_still_only_with_a_quiet_imu():
     assert rest.state(1.0) is False
     rest.on_armed(1.5, False)  # one corrupt "disarmed" in flight
     assert rest.state(1.5) is False
+
+
+def test_on_its_gear_while_the_motors_spin_up_the_vehicle_is_held_sideways_only():
+    """Landed and spinning up, the IMU's mean departs from the ground's (folded vibration, or
+    the lift-off itself): not at rest, so no zero vertical velocity; but still on its gear,
+    where the filter's north and east velocity are held at zero and its vertical one is not."""
+    from daemon.fusion import measurements as m
+    from daemon.fusion.state import VEL, NavFilter
+
+    cfg = FusionConfig()
+    rest = RestDetector(cfg)
+    rest.on_landed(0.0, True)
+    for k in range(40):  # motors off, then spinning up: 0.3 m/s^2 more than the ground's
+        rest.on_imu(0.02 * k, STILL * (1.0 if k < 30 else 1.03))
+    assert rest.on_gear(0.79) and not rest.at_rest(0.79)
+    rest.on_landed(0.8, False)  # lifted
+    assert not rest.on_gear(0.81)
+
+    f = NavFilter(cfg)
+    f.start(0.0, cfg.start_velocity_std, 0.0)
+    f.x[VEL] = [0.08, -0.05, -0.3]  # what 0.5 s of folded vibration and a lift-off leave
+    assert m.update_rest(f, axes=2)
+    assert np.allclose(f.x[VEL][:2], 0.0, atol=0.002) and f.x[VEL][2] == -0.3

@@ -144,8 +144,10 @@ class FusionConfig:
     # 1.0 the fit came as LOITER began, and moving the vehicle to where the map saw it go
     # then moved it in the hold (0.33-0.35 m; the fit's std says how short the climb was)
     climb_scale_min_m: float = 0.5
-    # outlier rejection: chi-square gate per measurement (99.9 % for 1, 3, 6 dof: 10.8, 16.3, 22.5)
+    # outlier rejection: chi-square gate per measurement (99.9 % for 1, 2, 3, 6 dof: 10.8, 13.8,
+    # 16.3, 22.5)
     gate_chi2_1dof: float = 10.8
+    gate_chi2_2dof: float = 13.8
     gate_chi2_3dof: float = 16.3
     gate_chi2_6dof: float = 22.5  # tracker position and attitude together
     reset_after_rejections: int = 10  # in a row: re-reference range/baro, re-align the map

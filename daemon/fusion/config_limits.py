@@ -75,6 +75,7 @@ LIMITS = {
     "baro_ground_effect_height_m": interval(0, 100),
     "climb_scale_min_m": interval(above=0, high=1000),
     "gate_chi2_1dof": CHI2,
+    "gate_chi2_2dof": CHI2,
     "gate_chi2_3dof": CHI2,
     "gate_chi2_6dof": CHI2,
     "reset_after_rejections": interval(1, 1_000_000),

@@ -215,12 +215,14 @@ def update_baro(f: NavFilter, altitude: float) -> bool:
 
 
 
-def update_rest(f: NavFilter) -> bool:
-    """The vehicle stands still (rest.py): zero velocity."""
-    H = np.zeros((3, DIM))
-    H[:, VEL] = np.eye(3)
-    R = np.eye(3) * f.cfg.rest_velocity_std**2
-    return gated_update(f, np.zeros(3), f.x[VEL].copy(), H, R, f.cfg.gate_chi2_3dof)
+def update_rest(f: NavFilter, axes: int = 3) -> bool:
+    """The vehicle stands still (rest.py): zero velocity along its first `axes` N axes (2:
+    north and east, a vehicle on its gear that may be lifting)."""
+    H = np.zeros((axes, DIM))
+    H[:, VEL.start:VEL.start + axes] = np.eye(axes)
+    R = np.eye(axes) * f.cfg.rest_velocity_std**2
+    gate = f.cfg.gate_chi2_3dof if axes == 3 else f.cfg.gate_chi2_2dof
+    return gated_update(f, np.zeros(axes), f.x[VEL][:axes].copy(), H, R, gate)
 
 
 def update_from_start(f: NavFilter, p_w: np.ndarray, R_n_b: np.ndarray, log_scale: float,

@@ -117,6 +117,13 @@ class RestDetector:
         """True when the vehicle stands still at time t."""
         return self.state(t) is True
 
+    def on_gear(self, t: float) -> bool:
+        """The autopilot's land detector says the vehicle is on the ground at time t, whatever
+        its IMU shows: spinning up to take off it may be lifting, but it does not slide
+        sideways on its gear (the detector clears as it lifts: ArduCopter's takeoff at full
+        throttle or half its climb acceleration)."""
+        return self._fresh(self._landed.value, t) is True
+
     def accelerating(self, t: float) -> bool:
         """The IMU's mean specific force over the last ONSET_S departs from what it read just
         before (its bias included) by more than ONSET_ACCEL beyond its noise: the vehicle is
