@@ -38,9 +38,10 @@ def test_a_disarmed_vehicle_stands_still_only_with_a_quiet_imu():
 
 
 def test_on_its_gear_while_the_motors_spin_up_the_vehicle_is_held_sideways_only():
-    """Landed and spinning up, the IMU's mean departs from the ground's (folded vibration, or
-    the lift-off itself): not at rest, so no zero vertical velocity; but still on its gear,
-    where the filter's north and east velocity are held at zero and its vertical one is not."""
+    """Landed and spinning up (the IMU's mean departs from the ground's: folded vibration, or
+    the lift-off itself), or landed and armed: not at rest, so no zero vertical velocity; but
+    on its gear, where the filter's north and east velocity are held at zero and its vertical
+    one is not."""
     from daemon.fusion import measurements as m
     from daemon.fusion.state import VEL, NavFilter
 
@@ -52,6 +53,12 @@ def test_on_its_gear_while_the_motors_spin_up_the_vehicle_is_held_sideways_only(
     assert rest.on_gear(0.79) and not rest.at_rest(0.79)
     rest.on_landed(0.8, False)  # lifted
     assert not rest.on_gear(0.81)
+    armed = RestDetector(cfg)  # armed on its gear with a quiet IMU: may lift any moment
+    armed.on_landed(0.0, True)
+    armed.on_armed(0.0, True)
+    for k in range(20):
+        armed.on_imu(0.02 * k, STILL)
+    assert armed.on_gear(0.39) and not armed.at_rest(0.39)
 
     f = NavFilter(cfg)
     f.start(0.0, cfg.start_velocity_std, 0.0)

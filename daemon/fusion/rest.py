@@ -6,7 +6,9 @@ alone it drifts. The autopilot knows when a multirotor is on the ground: its lan
 `ap.land_complete`, PX4's vehicle_land_detected). Without that message, a disarmed vehicle whose
 IMU has been quiet (specific force steady at g, rates near zero) stands still too; a disarmed
 one that is carried is not quiet. An armed vehicle is never taken to be still by its IMU alone:
-a smooth hover can look as quiet as the ground.
+a smooth hover can look as quiet as the ground. Nor is one its land detector says is on the
+ground: spinning up, it may lift before the detector clears (ArduCopter's at full throttle or
+half its climb acceleration); it is only held sideways then (`on_gear`).
 """
 
 from __future__ import annotations
@@ -104,6 +106,8 @@ class RestDetector:
         that cannot be told yet (no flight state, or too few IMU samples while disarmed)."""
         landed = self._fresh(self._landed.value, t)
         if landed is not None:
+            if landed and self._fresh(self._armed.value, t):
+                return False  # armed on its gear it may lift any moment: held sideways only
             return landed and not self.accelerating(t)
         armed = self._fresh(self._armed.value, t)
         if armed is None:
