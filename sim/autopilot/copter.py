@@ -227,8 +227,7 @@ class ArduCopterModel(AutopilotModel):
         elif self.failsafe_ekf:
             status = mavlink2.MAV_STATE_CRITICAL
         elif self.flying is not None:  # STANDBY while ap.land_complete, armed or not
-            status = (mavlink2.MAV_STATE_STANDBY if self.flying.flight.land.complete
-                      else mavlink2.MAV_STATE_ACTIVE)
+            status = mavlink2.MAV_STATE_ACTIVE if self._in_the_air() else mavlink2.MAV_STATE_STANDBY
         else:
             status = mavlink2.MAV_STATE_ACTIVE if self.armed else mavlink2.MAV_STATE_STANDBY
         return self.mav.heartbeat_encode(mavlink2.MAV_TYPE_QUADROTOR, self.autopilot_type,
