@@ -106,7 +106,9 @@ class FusionConfig:
     # when larger (imu_noise.py)
     accel_noise: float = 0.02
     accel_bias_std: float = 0.2  # m/s^2 initial
-    accel_bias_walk: float = 0.003  # m/s^2 per sqrt(s)
+    # m/s^2 per sqrt(s): the 50 Hz stream folds the motors' vibration into offsets that wander
+    # with their speeds (simulated: 0.1-0.15 m/s^2 within 2-10 s; RESULTS.md, issue 27)
+    accel_bias_walk: float = 0.1
     imu_timeout_s: float = 0.1
     # without IMU: constant velocity with this white acceleration noise (m/s^2/sqrt(Hz)); the
     # tracker corrects manoeuvres at frame rate, a small value keeps its map from wandering
