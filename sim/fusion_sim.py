@@ -94,6 +94,9 @@ class SensorOptions:
     imu_hz: float = 50.0
     accel_noise: float = 0.05
     accel_bias: tuple = (0.05, -0.04, 0.08)
+    # what the 50 Hz stream folds the motors' vibration into: per axis a seeded slow wander of
+    # this amplitude (m/s^2) and 0.05-0.5 Hz (0: none; sim/autopilot flies 0.1-0.15)
+    accel_wander: float = 0.0
     attitude_hz: float = 20.0
     tilt_noise_deg: float = 0.3
     heading_noise_deg: float = 1.0
@@ -152,6 +155,12 @@ class Flight:
     compass_bias_deg: float = 0.0  # of the attitude the autopilot reports
 
 
+def _wander(amplitude: float, rng: np.random.Generator):
+    """t -> a body-axis offset (3,): per axis a sine of `amplitude` at a seeded 0.05-0.5 Hz."""
+    hz, phase = rng.uniform(0.05, 0.5, 3), rng.uniform(0.0, 2 * np.pi, 3)
+    return lambda t: amplitude * np.sin(2 * np.pi * hz * t + phase)
+
+
 def autopilot_messages(truth: Truth, opt: SensorOptions, rng: np.random.Generator) -> list:
     """(arrival time on our clock, MAVLink message) for every stream, sorted by arrival."""
     out = []
@@ -165,9 +174,10 @@ def autopilot_messages(truth: Truth, opt: SensorOptions, rng: np.random.Generato
     if opt.flight_state:
         out += _flight_state_messages(truth, opt, rng)
     bias = np.array(opt.accel_bias)
+    wander = _wander(opt.accel_wander, rng) if opt.accel_wander > 0.0 else (lambda t: 0.0)
     if opt.imu is not None:
         def imu(i: int, ms: int):
-            acc = truth.f[i] + bias + rng.normal(0, opt.accel_noise, 3)
+            acc = truth.f[i] + bias + wander(truth.t[i]) + rng.normal(0, opt.accel_noise, 3)
             if opt.imu == "HIGHRES_IMU":
                 return mavlink2.MAVLink_highres_imu_message(ms * 1000, *acc, 0, 0, 0, 0, 0, 0,
                                                             0, 0, 0, 25, 0b111)
