@@ -6,9 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from daemon.config import MountingConfig
 from daemon.fusion.config import FusionConfig
+from daemon.fusion.estimator import FusionEstimator
 from daemon.fusion.imu_noise import ImuNoise
 from daemon.fusion.state import BIAS, POS, NavFilter
+from sim import fusion_sim as fh
 
 HZ = 50.0
 HOVER = np.array([0.0, 0.0, -9.80665])
@@ -80,10 +83,6 @@ def test_a_slowly_wandering_offset_in_the_stream_is_not_taken_for_motion() -> No
     (0.1-0.15 m/s^2 within 2-10 s in sim/autopilot): a bias held nearly fixed (a walk of
     0.003 m/s^2/sqrt(s)) took it for the vehicle's acceleration, without a rangefinder, and
     58-91 % of the positions were beyond 3 sigma (seeds 1, 2); the default walk follows it."""
-    from daemon.config import MountingConfig
-    from daemon.fusion.estimator import FusionEstimator
-    from sim import fusion_sim as fh
-
     sensors = fh.SensorOptions(rangefinder=False, accel_wander=0.15)
     for seed in (1, 2):
         flight = fh.simulate(sensors, seed=seed, truth=fh.survey_flight(legs=2, leg_m=10.0))
