@@ -30,9 +30,10 @@ class EarlySignals:
         self.starting = True
 
     def install(self) -> None:
+        """SIGHUP first: once SIGTERM is caught, a reload can no longer kill the process."""
+        signal.signal(signal.SIGHUP, self._hangup)
         for sig in STOP_SIGNALS:
             signal.signal(sig, self._stop)
-        signal.signal(signal.SIGHUP, self._hangup)
 
     def _stop(self, signum: int, frame: object) -> None:
         self.stop_requested = True
