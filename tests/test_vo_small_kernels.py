@@ -13,7 +13,17 @@ from vo.map_matching import _count_found_missed
 from vo.matcher import inverse2
 from vo.normal_equations import solve_spd
 from vo.outlier_rejection import SUBSET, random_subsets
-from vo.se3 import adjoint, compose, exp_se3, exp_so3, inv_se3, orthonormalized, rotvec, skew
+from vo.se3 import (
+    adjoint,
+    compose,
+    exp_se3,
+    exp_so3,
+    inv_se3,
+    orthonormalized,
+    rotvec,
+    scaled_motion,
+    skew,
+)
 
 
 def _twist_matrix(xi: np.ndarray) -> np.ndarray:
@@ -48,6 +58,20 @@ def test_rotations_against_scipy(angle):
         assert np.allclose(rotvec(R), Rotation.from_matrix(R).as_rotvec(), rtol=1e-9,
                            atol=1e-15)
         assert np.allclose(exp_so3(rotvec(R)), R, rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("size", [1e-10, 1e-3, 0.3, 1.5])
+def test_scaled_motion_is_the_motion_repeated_or_split(size):
+    """scaled_motion(T, k) = T^k for whole k, its half taken twice is T, and none of it is no
+    motion (T from scipy's matrix exponential)."""
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        T = expm(_twist_matrix(rng.normal(size=6) * size))
+        np.testing.assert_allclose(scaled_motion(T, 1.0), T, atol=1e-9)
+        np.testing.assert_allclose(scaled_motion(T, 3.0), T @ T @ T, atol=1e-9)
+        half = scaled_motion(T, 0.5)
+        np.testing.assert_allclose(half @ half, T, atol=1e-9)
+        np.testing.assert_allclose(scaled_motion(T, 0.0), np.eye(4), atol=1e-12)
 
 
 def test_rotvec_at_pi_gives_a_rotation_that_turns_back_the_same():
