@@ -93,3 +93,10 @@ def test_vibration_spread_is_for_the_virtual_clock_loop_and_a_share(capsys):
                  ["--vibration-spread", "0.03", "--realtime"]):
         assert main(["fly", *args]) == 2
         assert "--vibration-spread is the virtual-clock loop's IMU" in capsys.readouterr().err
+
+
+def test_drop_frames_is_for_the_virtual_clock_loop_and_a_share(capsys):
+    for args in (["--drop-frames", "0.7"], ["--drop-frames", "-0.1"],
+                 ["--drop-frames", "0.2", "--realtime"]):
+        assert main(["fly", *args]) == 2
+        assert "--drop-frames is the virtual-clock loop's share" in capsys.readouterr().err

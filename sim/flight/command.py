@@ -66,6 +66,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--latency-ms", type=float, default=None, metavar="MS",
                         help="capture-to-send latency of the companion in the virtual-clock "
                              f"loop (default {1e3 * Timing().capture_to_send_s:g})")
+    parser.add_argument("--drop-frames", type=float, default=0.0, metavar="SHARE",
+                        help="the virtual-clock service drops this share of the frames in "
+                             "seeded runs of 3 on average, as a busy machine's does (default 0; "
+                             "--realtime --load measures a real one)")
     parser.add_argument("--config", type=Path, default=None,
                         help="service config (TOML, as for sdvl run); its link and camera are "
                              "the simulation's, its mounting the world's")
@@ -98,8 +102,8 @@ def fly(mission: Mission, config: Config, seed: int, args: argparse.Namespace) -
         from sim.flight.realtime import fly_realtime
 
         return fly_realtime(mission, config, seed, size, without, args.load, prefix)
-    timing = Timing() if args.latency_ms is None else Timing(
-        capture_to_send_s=args.latency_ms / 1e3)
+    latency_s = Timing().capture_to_send_s if args.latency_ms is None else args.latency_ms / 1e3
+    timing = Timing(capture_to_send_s=latency_s, drop_share=args.drop_frames)
     baro = (None if args.baro_ground_effect is None
             else BaroSpec(ground_effect_m=args.baro_ground_effect))
     imu = (None if args.vibration_spread is None
@@ -123,6 +127,9 @@ def run(args: argparse.Namespace) -> int:
     if args.latency_ms is not None and (args.realtime or args.latency_ms < 0):
         raise InputError("--latency-ms is the virtual-clock loop's latency (>= 0); --realtime "
                          "measures its own")
+    if args.drop_frames and (args.realtime or not 0.0 <= args.drop_frames <= 0.6):
+        raise InputError("--drop-frames is the virtual-clock loop's share of dropped frames "
+                         "(0 to 0.6); --realtime drops what the machine makes it drop")
     if args.frames_csv is not None and (args.seeds is not None or args.realtime):
         raise InputError("--frames-csv writes one virtual-clock flight: use --seed N, "
                          "without --realtime")

@@ -22,6 +22,7 @@ class Timing:
     gcs_link_s: float = 0.02  # a telemetry radio, one way
     step_s: float = 0.0025  # ArduCopter's 400 Hz main loop
     our_clock_s: float = 5000.0  # our monotonic clock when the autopilot boots
+    drop_share: float = 0.0  # frames the service drops in runs, a busy machine's (frame_drops.py)
 
 
 @dataclass

@@ -29,6 +29,7 @@ from sim.autopilot.imu import ImuSpec
 from sim.flight.autopilot_side import AutopilotSide, DelayLine
 from sim.flight.companion import LockstepCompanion, Tracked
 from sim.flight.flight_run import FlightRun, Timing
+from sim.flight.frame_drops import FrameDrops
 from sim.flight.mission import Mission
 from sim.flight.world import FlightWorld
 from sim.replay.autopilot_process import VisionMessage
@@ -73,6 +74,7 @@ class ClosedLoop:
             lambda: self.now + tm.our_clock_s)
         self.to_companion = DelayLine(tm.link_s, self.companion.feed)
         self.pending: deque[tuple[float, Future]] = deque()  # (due, the worker's Tracked)
+        self.drops = FrameDrops(tm.drop_share, seed)
 
     def run(self) -> FlightRun:
         """Fly until the mission has ended (or its time limit). A worker thread renders and
@@ -94,12 +96,13 @@ class ClosedLoop:
                     self.companion.tick()
                     if self.now >= next_frame - 1e-9:
                         frame += 1
-                        self._capture(camera, frame)
+                        if not self.drops.drop():
+                            self._capture(camera, frame)
                     while self.pending and self.pending[0][0] <= self.now + 1e-9:
                         self.companion.publish(self.pending.popleft()[1].result())
         finally:
             self.companion.close()
-        return self._result(time.process_time() - cpu0, time.perf_counter() - wall0)
+        return self._result(time.process_time() - cpu0, time.perf_counter() - wall0, frame)
 
     def _next_event(self) -> float:
         """The next estimate due or message arriving between us and the autopilot: the loop
@@ -121,11 +124,11 @@ class ClosedLoop:
         image, depth = self.world.frame(index, t, T_ned_body, self.config.camera.depth)
         return self.companion.track(index, t, t_capture, image, depth, orientation)
 
-    def _result(self, cpu_s: float, wall_s: float) -> FlightRun:
+    def _result(self, cpu_s: float, wall_s: float, offered: int) -> FlightRun:
         ap = self.autopilot
         sent = [VisionMessage(m.kind, m.t_arrival + self.timing.link_s, m.fields)
                 for m in self.companion.sent]
         return FlightRun(self.mission, self.seed, self.without, self.timing,
                          ap.truth_trajectory(), ap.runner.results, sent, self.companion.rows,
                          ap.model.record, ap.viso_delay_ms(), ap.compass, wall_s=wall_s,
-                         cpu_s=cpu_s)
+                         cpu_s=cpu_s, offered=offered if self.drops.dropped else None)
