@@ -5,6 +5,7 @@ lost state after bad frames in a row (6.9), and the keyframe decision (6.6)."""
 from __future__ import annotations
 
 import time
+from collections import deque
 
 import numpy as np
 
@@ -19,8 +20,8 @@ from vo.result import FrameResult, PriorUse, Quality, ms_since
 from vo.rotation_prior import agrees, relative_prior
 from vo.se3 import inv_se3, rotation_angle_deg, scaled_motion
 
-STEADY_INTERVAL = 0.25  # frame intervals within this share of the last one's: stamp jitter
-MAX_CARRY = 10.0  # the last motion carried over at most this many of its own durations
+PERIOD_INTERVALS = 31  # the camera's frame period: the median of this many frame intervals
+MAX_CARRY = 10  # the last motion carried over at most this many times its own frames
 
 
 class FrameTracking:
@@ -33,6 +34,8 @@ class FrameTracking:
         self.last: Frame | None = None  # the last frame with a pose in this map
         self.motion = np.eye(4)  # T_c_w of the last frame times the inverse of the one before
         self.motion_s = 0.0  # the time that motion took (0: none yet)
+        self.intervals: deque[float] = deque(maxlen=PERIOD_INTERVALS)  # between frames seen
+        self.t_seen: float | None = None  # the last frame's time
         self.turn_rate = 0.0  # degrees per second the camera turned in that motion
         self.lost = LostCounter(config)
 
@@ -72,6 +75,9 @@ class FrameTracking:
         turns away from beyond the gate is refused and the alignment done again without it."""
         cfg = self.config
         predicted = self._carried(frame.t - last.t) @ last.T_c_w
+        if self.t_seen is not None and frame.t > self.t_seen:
+            self.intervals.append(frame.t - self.t_seen)
+        self.t_seen = frame.t
         prior = relative_prior(frame.orientation, last.orientation, last.T_c_w[:3, :3],
                                cfg.rotation_prior_deg)
         if prior is not None:
@@ -86,17 +92,19 @@ class FrameTracking:
 
     def _carried(self, dt: float) -> np.ndarray:
         """The constant-velocity motion over the dt seconds since the last frame: the last
-        motion as it is while the frames come at its pace, else carried on at its velocity
-        (frames the service dropped, or a bad frame, between them: a per-frame motion fell
-        0.36 m short after eight dropped frames and tracking took a wrong pose)."""
+        motion times the frame periods dt spans over those it spanned (frames the service
+        dropped, or a bad frame, in either: a per-frame motion fell 0.36 m short after eight
+        dropped frames and tracking took a wrong pose). Whole periods, so a camera's jittery
+        stamps (TUM's 25-40 ms at 30 Hz) change nothing."""
         if not self.config.constant_velocity:
             return np.eye(4)
-        if self.motion_s <= 0.0 or dt <= 0.0:
+        if not self.intervals or self.motion_s <= 0.0 or dt <= 0.0:
             return self.motion
-        ratio = dt / self.motion_s
-        if abs(ratio - 1.0) <= STEADY_INTERVAL:
+        period = float(np.median(self.intervals))
+        now, before = max(1, round(dt / period)), max(1, round(self.motion_s / period))
+        if now == before:
             return self.motion
-        return scaled_motion(self.motion, min(ratio, MAX_CARRY))
+        return scaled_motion(self.motion, min(now / before, MAX_CARRY))
 
     def _align_to(self, frame: Frame, last: Frame) -> None:
         align_frame(frame, last, last.feat_point, last.feat_px, self.matcher.map.points,
