@@ -109,15 +109,20 @@ class MapFusion:
             self.gate.restart()
             return
         metric = f.scale_source is ScaleSource.METRIC
-        # a pose the filter refuses (a wrong one after dropped frames) would skew the scale's
-        # fits and, through a rescale, place the vehicle where it says: 1 m off at a std of 0.28 m
-        if not metric and m.vo_agrees(f, *self._vo_args(t, frame, att)):
+        if not metric:  # a metric map has no scale to fit
             self._late_range_prior(t, frame, att)
             self._climb_scale(t, frame, att)
             self._accel_scale(t, frame, att)
-        vo = self._vo_args(t, frame, att)
-        if m.update_vo(f, *vo):
-            R_n_b = vo[2]
+        factor = inflation(self.cfg, frame.quality)
+        imu = self.imu_fresh(t)  # without it the horizontal rows never touch the scale
+        coarse = (self.cfg.coarse_inflation if imu and np.sqrt(f.P[LOG_SCALE, LOG_SCALE])
+                  > self.cfg.coarse_scale_std else 1.0)
+        R_n_b = f.R_nom @ frame.R_w_b
+        attitude = (None if att is None
+                    else (att.R_n_b, frame.R_w_b,
+                          attitude_noise(self.cfg, frame.quality, att.gap_var)))
+        if m.update_vo(f, frame.p_w, frame.cov, R_n_b, factor, imu, attitude,
+                       coarse):
             if np.linalg.norm(f.x[POS] - f.x[ANCHOR]) > self.cfg.reanchor_distance_m:
                 f.reanchor(frame.p_w, R_n_b)
             if not metric:
@@ -126,19 +131,6 @@ class MapFusion:
             self._realign(frame, att.R_n_b, metric)
         if f.scale_source is ScaleSource.PRIOR:
             f.forget_scale()
-
-    def _vo_args(self, t: float, frame: FrameInput, att: object) -> tuple:
-        """update_vo's arguments after f: the frame's pose, its quality's inflation, the
-        autopilot's attitude, and a coarse scale's inflation while the IMU moves it."""
-        f, cfg = self.filter, self.cfg
-        imu = self.imu_fresh(t)  # without it the horizontal rows never touch the scale
-        coarse = (cfg.coarse_inflation if imu and np.sqrt(f.P[LOG_SCALE, LOG_SCALE])
-                  > cfg.coarse_scale_std else 1.0)
-        attitude = (None if att is None
-                    else (att.R_n_b, frame.R_w_b,
-                          attitude_noise(cfg, frame.quality, att.gap_var)))
-        return (frame.p_w, frame.cov, f.R_nom @ frame.R_w_b, inflation(cfg, frame.quality),
-                imu, attitude, coarse)
 
     def _realign(self, frame: FrameInput, R_n_b: np.ndarray, metric: bool) -> None:
         """The tracker's poses were rejected reset_after_rejections times in a row: the same

@@ -35,7 +35,11 @@ def gated_update(f: NavFilter, z: np.ndarray, h: np.ndarray, H: np.ndarray, R: n
     those states (a Schmidt update; the Joseph form keeps the covariance right)."""
     S = H @ f.P @ H.T + R
     y = z - h
-    if not passes_gate(y, S, gate):
+    try:
+        d2 = float(y @ np.linalg.solve(S, y))
+    except np.linalg.LinAlgError:
+        return False
+    if not np.isfinite(d2) or d2 > gate:
         return False
     K = f.P @ H.T @ np.linalg.inv(S)
     if frozen is not None:
@@ -47,15 +51,6 @@ def gated_update(f: NavFilter, z: np.ndarray, h: np.ndarray, H: np.ndarray, R: n
         return False
     f.x, f.P = x, 0.5 * (P + P.T)
     return True
-
-
-def passes_gate(y: np.ndarray, S: np.ndarray, gate: float) -> bool:
-    """Whether the innovation y with covariance S is within the chi-square gate."""
-    try:
-        d2 = float(y @ np.linalg.solve(S, y))
-    except np.linalg.LinAlgError:
-        return False
-    return bool(np.isfinite(d2) and d2 <= gate)
 
 
 def fold_alignment(f: NavFilter) -> None:
@@ -134,28 +129,6 @@ def update_vo(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarra
     then (only a constant-velocity guess would), so the horizontal rows do not update the scale
     (a Schmidt "consider" update: the scale's uncertainty still counts in their innovation).
     `horizontal_inflation` further inflates the north and east rows (variance factor)."""
-    z, h, H, R, gate, frozen = _vo_rows(f, p_w, cov_w, R_n_b, inflation, scale_from_motion,
-                                        attitude, horizontal_inflation)
-    disagreement = (z[:3] - h[:3]) * f.scale  # metres, N axes
-    ok = gated_update(f, z, h, H, R, gate, frozen)
-    fold_alignment(f)
-    f.rejections["vo"] = 0 if ok else f.rejections["vo"] + 1
-    run = [] if ok else [*f.vo_disagreement, (float(f.t), disagreement)]
-    f.vo_disagreement = run[-f.cfg.reset_after_rejections:]  # the run a re-alignment looks at
-    return ok
-
-
-def vo_agrees(f: NavFilter, *args: object) -> bool:
-    """Whether update_vo(f, *args) would pass its gate, the filter left as it is."""
-    z, h, H, R, gate, _ = _vo_rows(f, *args)
-    return passes_gate(z - h, H @ f.P @ H.T + R, gate)
-
-
-def _vo_rows(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarray,
-             inflation: float, scale_from_motion: bool = True,
-             attitude: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-             horizontal_inflation: float = 1.0) -> tuple:
-    """(z, h, H, R, gate, frozen) of update_vo's measurement (its arguments)."""
     rotate = np.kron(np.eye(2), f.R_nom)
     cov_n = rotate @ cov_w @ rotate.T
     coupling = tilt_coupling(cov_n)
@@ -181,7 +154,13 @@ def _vo_rows(f: NavFilter, p_w: np.ndarray, cov_w: np.ndarray, R_n_b: np.ndarray
         frozen |= _without_motion(len(z), abs(u[2]) >= 1.0)
     if np.sqrt(f.P[LOG_SCALE, LOG_SCALE]) > f.cfg.nav_scale_std:
         frozen[np.r_[POS, VEL, BIAS]] = True  # the map teaches its scale, not the motion
-    return z, h, H, R, gate, frozen
+    disagreement = (z[:3] - h[:3]) * f.scale  # metres, N axes
+    ok = gated_update(f, z, h, H, R, gate, frozen)
+    fold_alignment(f)
+    f.rejections["vo"] = 0 if ok else f.rejections["vo"] + 1
+    run = [] if ok else [*f.vo_disagreement, (float(f.t), disagreement)]
+    f.vo_disagreement = run[-f.cfg.reset_after_rejections:]  # the run a re-alignment looks at
+    return ok
 
 
 def _scalar_update(f: NavFilter, which: str, z: float, index: int, std: float) -> bool:
