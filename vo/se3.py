@@ -68,22 +68,6 @@ def compose_into(A, B, out):
     out[3, 3] = 1.0
 
 
-def scaled_motion(T: np.ndarray, ratio: float) -> np.ndarray:
-    """exp(ratio log T): the rigid motion T carried on at the same screw velocity for `ratio`
-    times its duration (2: twice as far about the same axis; 0.5: half way)."""
-    w = rotvec(np.ascontiguousarray(T[:3, :3]))
-    theta2 = float(w @ w)
-    theta = np.sqrt(theta2)
-    W = skew(w)
-    if theta < 1e-8:
-        b, c = 0.5, 1.0 / 6.0
-    else:
-        b, c = (1.0 - np.cos(theta)) / theta2, (theta - np.sin(theta)) / (theta2 * theta)
-    V = np.eye(3) + b * W + c * (W @ W)  # exp_se3's translation matrix: t = V v
-    xi = np.concatenate([np.linalg.solve(V, T[:3, 3]), w])
-    return exp_se3(ratio * xi)
-
-
 def left_jacobian(xi: np.ndarray) -> np.ndarray:
     """6x6 left Jacobian of exp_se3 at the twist xi = (v, w): exp(xi + d) = exp(J d) exp(xi)
     to first order in d (Barfoot & Furgale 2014, eq. 102), so a solver that adds d to xi
@@ -108,6 +92,14 @@ def left_jacobian(xi: np.ndarray) -> np.ndarray:
     J[:3, :3] = J[3:, 3:] = np.eye(3) + a * W + b * W2
     J[:3, 3:] = Q
     return J
+
+
+def scaled_motion(T: np.ndarray, ratio: float) -> np.ndarray:
+    """exp(ratio log T): the rigid motion T carried on at the same screw velocity for `ratio`
+    times its duration (2: twice as far about the same axis; 0.5: half way)."""
+    w = rotvec(np.ascontiguousarray(T[:3, :3]))
+    V = left_jacobian(np.concatenate([np.zeros(3), w]))[:3, :3]  # exp_se3's t = V v
+    return exp_se3(ratio * np.concatenate([np.linalg.solve(V, T[:3, 3]), w]))
 
 
 @numba.njit(cache=True, nogil=True)

@@ -19,6 +19,8 @@ class FrameDrops:
         if not 0.0 <= share < 1.0:
             raise ValueError(f"a share of frames dropped is in [0, 1), not {share}")
         self.share = share
+        self.stay = 1.0 - 1.0 / MEAN_RUN  # a run goes on
+        self.enter = share / MEAN_RUN / (1.0 - share)  # a run starts: `share` dropped in all
         self.rng = np.random.default_rng([seed, 0xD209])
         self.dropping = False
         self.dropped = 0
@@ -27,8 +29,6 @@ class FrameDrops:
         """Whether the next frame is dropped."""
         if self.share == 0.0:
             return False
-        leave = 1.0 / MEAN_RUN
-        enter = self.share * leave / (1.0 - self.share)  # stationary share of dropped frames
-        self.dropping = bool(self.rng.random() < (1.0 - leave if self.dropping else enter))
+        self.dropping = bool(self.rng.random() < (self.stay if self.dropping else self.enter))
         self.dropped += self.dropping
         return self.dropping
