@@ -11,6 +11,7 @@ from sdvl.errors import InputError
 from sim.metrics import evaluate
 from sim.trajectory import Trajectory
 from vo.config import TrackerConfig
+from vo.frame import Frame
 from vo.tracker import Tracker
 
 N_SYNTH = 120
@@ -175,23 +176,49 @@ def test_keyframe_reference_counts_the_keyframes_new_candidates():
     next keyframe (with the bare count of 40 it came far too late on kitti00's turn). This is
     the default count (grid cells with map points). The window counts frames mapped since the
     keyframe (a lagging mapping thread updates the candidates later)."""
-    tracker = Tracker(small_camera(), TrackerConfig(candidate_min_updates=1, kf_min_frames=30,
-                                                    kf_count_inliers=False))
+    cam = small_camera()
+    tracker = Tracker(cam, TrackerConfig(candidate_min_updates=1, kf_min_frames=30,
+                                         kf_count_inliers=False))
     policy = tracker.tracking.keyframes
+    frame = Frame(0, 0.0, np.zeros((cam.height, cam.width), np.uint8), cam, 3)  # no keyframe near
     policy.kf_visible, policy.frames_since_kf = 40, 0
-    assert not policy.due(45, True)
+    assert not policy.due(45, True, frame)
     tracker.mapper.frames_since_keyframe += 1  # the mapper updated the candidates once
-    assert not policy.due(200, True)  # the candidates are tracked: reference 200
+    assert not policy.due(200, True, frame)  # the candidates are tracked: reference 200
     assert policy.kf_visible == 200
-    assert not policy.due(205, True)  # not mapped since: the window is still open
+    assert not policy.due(205, True, frame)  # not mapped since: the window is still open
     assert policy.kf_visible == 205
     tracker.mapper.frames_since_keyframe += 1
-    assert not policy.due(210, True)  # later frames no longer raise it
+    assert not policy.due(210, True, frame)  # later frames no longer raise it
     assert policy.kf_visible == 205
-    assert not policy.due(150, True)  # 73%: too early for the 90% rule
-    assert not policy.due(130, False)  # under 70%, but only good frames qualify
-    assert policy.due(130, True)
+    assert not policy.due(150, True, frame)  # 73%: too early for the 90% rule
+    assert not policy.due(130, False, frame)  # under 70%, but only good frames qualify
+    assert policy.due(130, True, frame)
     assert (policy.kf_visible, policy.frames_since_kf) == (130, 0)
+
+
+def _hover(i: int) -> np.ndarray:
+    """A downward camera drifting sideways for two seconds (the map's start), then hovering at
+    1.5 m, sinking 0.2 mm a frame (an autopilot holding height on its barometer)."""
+    k = min(i, 60)
+    return look_down_pose(0.4 * np.sin(k * 0.03), 0.25 * np.sin(k * 0.021),
+                          1.5 + 0.0002 * max(i - 60, 0))
+
+
+def test_a_hover_takes_no_keyframes_where_one_stands(data_dir):
+    """Keyframes where the view is no newer than a keyframe's: at 320x240 under 50 points are
+    seen, and the floor rule made a hover's keyframe every second at under 1 % of the depth
+    from the last (the map's new points then came from no baseline)."""
+    cam, tex = small_camera(), load_texture(data_dir)
+    frames = [(i / 30.0, render_plane(tex, cam, _hover(i))) for i in range(240)]
+    hovering = {}
+    for baseline in (0.0, TrackerConfig().kf_min_baseline):
+        tracker = Tracker(cam, TrackerConfig(kf_min_baseline=baseline))
+        _, results = _run(tracker, frames)
+        assert all(r.quality == "good" for r in results[90:])
+        hovering[baseline] = sum(r.keyframe for r in results[90:])
+    assert hovering[0.0] >= 4  # one a second: kf_min_frames
+    assert hovering[TrackerConfig().kf_min_baseline] == 0
 
 
 def test_bad_input_is_an_input_error():

@@ -188,6 +188,11 @@ class TrackerConfig:
     # taken where little was visible must not keep the map from growing (at 320x240 the
     # inliers stay below 50, so a keyframe comes every kf_min_frames, also while hovering)
     kf_min_points: int = 50
+    # ... and those two rules only where the view is new: no keyframe within this share of the
+    # scene's depth and kf_min_turn_deg (a hover's keyframe every second at 0.3-1 % of the
+    # depth replaced the climb's, and the map's scale drifted 8 %: RESULTS.md, tracker-kf-baseline)
+    kf_min_baseline: float = 0.05
+    kf_min_turn_deg: float = 5.0
     # count the points seen as the frame's inlier matches (as the original SDVL does), else as
     # the grid cells that map points project into (tracking matches one point per cell). The
     # inliers of a keyframe taken in a weak moment (kitti00's turn: 7) held the next keyframe

@@ -67,6 +67,8 @@ LIMITS = {
     "kf_points_ratio": SHARE,
     "lost_points_ratio": SHARE,
     "kf_min_points": COUNT,
+    "kf_min_baseline": interval(0, 10, why="0: every keyframe the counts ask for"),
+    "kf_min_turn_deg": interval(0, 180),
     "kf_cell_max_unmatched": SOME,
     # each keyframe keeps its image pyramid and corners (~1 MB at 640x480): the map's memory
     "max_keyframes": interval(3, 1000, why="the map's memory grows with it"),

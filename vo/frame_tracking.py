@@ -64,7 +64,7 @@ class FrameTracking:
         self.turn_rate = rotation_angle_deg(self.motion[:3, :3]) / dt if dt > 0 else 0.0
         self.last = frame
         n_seen = m.n_inliers if cfg.kf_count_inliers else m.n_visible
-        keyframe = self.keyframes.due(n_seen, quality == Quality.GOOD)
+        keyframe = self.keyframes.due(n_seen, quality == Quality.GOOD, frame)
         result.T_w_c = frame.T_w_c
         result.covariance = pose_covariance(m.H, m.sigma, result.T_w_c)
         return result, keyframe

@@ -3,8 +3,12 @@ fall below a ratio of those seen at the last keyframe, or at once when too many 
 
 from __future__ import annotations
 
+import numpy as np
+
 from vo.config import TrackerConfig
+from vo.frame import Frame
 from vo.mapping import Mapper
+from vo.se3 import rotation_angle_deg
 
 
 class KeyframePolicy:
@@ -22,8 +26,8 @@ class KeyframePolicy:
         self.frames_since_kf = 0
         self.kf_visible = None
 
-    def due(self, n_seen: int, good: bool) -> bool:
-        """Count a tracked frame that sees n_seen map points; True when it becomes a keyframe
+    def due(self, n_seen: int, good: bool, frame: Frame) -> bool:
+        """Count a tracked `frame` that sees n_seen map points; True when it becomes a keyframe
         (only a good frame can). The points "seen when the keyframe was made" (6.6) include
         its new candidates, which tracking uses once the mapper has added them and updated
         them candidate_min_updates times: until then the reference is the most points seen
@@ -37,18 +41,42 @@ class KeyframePolicy:
         elif (not self.config.kf_count_inliers
               and self.mapper.frames_since_keyframe <= self.config.candidate_min_updates):
             self.kf_visible = max(self.kf_visible, n_seen)
-        if not (good and self._needed(n_seen)):
+        if not (good and self._needed(n_seen, frame)):
             return False
         self.frames_since_kf = 0
         self.kf_visible = n_seen
         return True
 
-    def _needed(self, n_seen: int) -> bool:
-        """Keyframe policy of 6.6: enough frames and points lost, or too many points lost."""
+    def _needed(self, n_seen: int, frame: Frame) -> bool:
+        """Keyframe policy of 6.6: enough frames and points lost where the view is new, or too
+        many points lost."""
         cfg = self.config
         if n_seen < (1.0 - cfg.lost_points_ratio) * self.kf_visible:
             return True
         # the thesis policy is relative to the last keyframe; a floor keeps a sparse map
         # (a keyframe taken where little was visible) from never growing again
-        return self.frames_since_kf >= cfg.kf_min_frames and (
-            n_seen < cfg.kf_points_ratio * self.kf_visible or n_seen < cfg.kf_min_points)
+        return (self.frames_since_kf >= cfg.kf_min_frames
+                and (n_seen < cfg.kf_points_ratio * self.kf_visible
+                     or n_seen < cfg.kf_min_points)
+                and self._new_view(frame))
+
+    def _new_view(self, frame: Frame) -> bool:
+        """Whether no keyframe of the map stands within kf_min_baseline of the frame's median
+        scene depth of it and within kf_min_turn_deg of its orientation: PTAM's "far enough
+        from the other keyframes" (the thesis' chapter 2; its 6.6 counts only points)."""
+        cfg = self.config
+        if cfg.kf_min_baseline <= 0 or len(frame.feat_point) == 0:
+            return True
+        m = self.mapper.map
+        with m.lock:
+            X = m.points.pos_w[frame.feat_point]
+            poses = [kf.T_c_w for kf in m.keyframes.values()]
+        depth = float(np.median(X @ frame.T_c_w[2, :3] + frame.T_c_w[2, 3]))
+        if not depth > 0:
+            return True
+        R_c_w, centre = frame.T_c_w[:3, :3], frame.position
+        for T in poses:
+            near = np.linalg.norm(T[:3, :3].T @ T[:3, 3] + centre) < cfg.kf_min_baseline * depth
+            if near and rotation_angle_deg(T[:3, :3] @ R_c_w.T) < cfg.kf_min_turn_deg:
+                return False
+        return True
