@@ -65,19 +65,16 @@ class KeyframePolicy:
         scene depth of it and within kf_min_turn_deg of its orientation: PTAM's "far enough
         from the other keyframes" (the thesis' chapter 2; its 6.6 counts only points)."""
         cfg = self.config
-        if cfg.kf_min_baseline <= 0 or len(frame.feat_point) == 0:
+        if cfg.kf_min_baseline <= 0:
             return True
-        m = self.mapper.map
         # no map lock: a threaded mapping step holds it for milliseconds, and a hover asks on
         # every frame (66-74 % of the frames dropped in `sdvl fly --realtime --load 2`)
-        X = m.points.pos_w[frame.feat_point]
-        poses = [kf.T_c_w for kf in list(m.keyframes.values())]
-        depth = float(np.median(X @ frame.T_c_w[2, :3] + frame.T_c_w[2, 3]))
-        if not depth > 0:
+        depths = self.mapper.scene_depths(frame)
+        if len(depths) == 0:
             return True
+        reach = cfg.kf_min_baseline * float(np.median(depths))
         R_c_w, centre = frame.T_c_w[:3, :3], frame.position
-        for T in poses:
-            near = np.linalg.norm(T[:3, :3].T @ T[:3, 3] + centre) < cfg.kf_min_baseline * depth
-            if near and rotation_angle_deg(T[:3, :3] @ R_c_w.T) < cfg.kf_min_turn_deg:
-                return False
-        return True
+        return not any(
+            np.linalg.norm(kf.position - centre) < reach
+            and rotation_angle_deg(kf.T_c_w[:3, :3] @ R_c_w.T) < cfg.kf_min_turn_deg
+            for kf in list(self.mapper.map.keyframes.values()))

@@ -262,7 +262,7 @@ class Mapper:
             slot = self.map.add_keyframe(frame)
         self.n_keyframes_added += 1
         self.frames_since_keyframe = 0
-        depths = self._scene_depths(frame)
+        depths = self.scene_depths(frame)
         if len(depths) == 0:
             return
         d_med, d_min = float(np.median(depths)), float(np.min(depths))
@@ -397,7 +397,8 @@ class Mapper:
         with self.map.lock:
             self.map.describe_points(ids, need)
 
-    def _scene_depths(self, frame: Frame) -> np.ndarray:
+    def scene_depths(self, frame: Frame) -> np.ndarray:
+        """Depths in frame of the map points it matched (those in front of it)."""
         pts = self.map.points
         if len(frame.feat_point) == 0:
             return np.zeros(0)
