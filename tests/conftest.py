@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 import platform
 import signal
+import subprocess
+import sys
 from pathlib import Path
 
 # numba compiles for the machine's CPU, and AVX-512 code rounds differently from AVX2 code:
@@ -20,6 +22,18 @@ from sim.shared_data import shared_data_dir
 
 DATA_DIR = shared_data_dir()
 REAL_SEQUENCES = ("tum_fr1_rpy", "vamr_ex01_checkerboard736", "kitti00_first200")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """With xdist workers, fill numba's cache once before they start (tests/precompile.py, its
+    parts side by side), so they load the common kernels instead of each compiling them."""
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
+        return
+    script = Path(__file__).with_name("precompile.py")
+    parts = [subprocess.Popen([sys.executable, str(script), part]) for part in ("tracker",
+                                                                              "renderer")]
+    if any([p.wait() != 0 for p in parts]):
+        pytest.exit("compiling the numba kernels before the workers start failed (above)", 1)
 
 
 @pytest.fixture(scope="session")
