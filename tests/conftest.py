@@ -30,8 +30,7 @@ def pytest_configure(config: pytest.Config) -> None:
     if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
         return
     script = Path(__file__).with_name("precompile.py")
-    parts = [subprocess.Popen([sys.executable, str(script), part]) for part in ("tracker",
-                                                                              "renderer")]
+    parts = [subprocess.Popen([sys.executable, str(script), part]) for part in ("tracker", "scene")]
     if any([p.wait() != 0 for p in parts]):
         pytest.exit("compiling the numba kernels before the workers start failed (above)", 1)
 

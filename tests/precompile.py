@@ -3,7 +3,7 @@ starts its workers (tests/conftest.py): otherwise every worker, and every servic
 compiles the same kernels at once on a clean checkout (a cold suite took 880 s of CPU on 2 cores
 against 593 s with the cache filled).
 
-`python tests/precompile.py tracker|renderer`: one part; conftest runs both parts side by side,
+`python tests/precompile.py tracker|scene`: one part; conftest runs both parts side by side,
 one process per core.
 """
 
@@ -32,18 +32,28 @@ def tracker() -> None:
             tracker.close()
 
 
-def renderer() -> None:
-    """The synthetic camera's kernels: two frames and a depth map of a preset flight."""
+def scene() -> None:
+    """The kernels that do not touch the tracker's: the synthetic camera's (two frames and a
+    depth map of a preset flight), the depth camera's and the occupancy map's."""
+    from calib.camera import CameraModel
+    from calib.depth_camera import decimate, register_depth
     from sim.synth.flight import synthetic_sequence
+    from vo.occupancy import OccupancyMap
 
     sequence = synthetic_sequence("room-handheld", frames=2, size=(64, 48),
                                   textures="procedural")
     for t, image in sequence.frames():
         assert np.isfinite(image).all()
-        sequence.depth_at(t)
+        depth = sequence.depth_at(t)
+    camera = sequence.camera
+    register_depth(depth, camera, CameraModel(32, 24, 25.0, 25.0, 16.0, 12.0), np.eye(4))
+    decimate(depth, camera, 2)
+    occupancy = OccupancyMap()
+    occupancy.insert(np.random.default_rng(0).uniform(-2.0, 2.0, (50, 3)), np.zeros(3))
+    occupancy.occupied()
 
 
-PARTS = {"tracker": tracker, "renderer": renderer}
+PARTS = {"tracker": tracker, "scene": scene}
 
 if __name__ == "__main__":
     PARTS[sys.argv[1]]()
