@@ -160,3 +160,30 @@ def test_a_yaw_spin_relocalises_by_features(data_dir, features):
     if features:
         assert relocalised[0] <= 5
         assert_one_map(results, _spinning)
+
+
+def test_lost_frames_share_the_keyframes_then_try_orb():
+    """reloc_keyframes_per_frame: lost frames take the keyframes newest first in shares, the
+    frame after the last share tries the ORB step alone, and then the shares start over; a
+    new loss starts from the newest; 0 tries every keyframe and ORB on every lost frame."""
+    from types import SimpleNamespace
+
+    from vo.relocalization import Relocalizer
+
+    keyframes = {slot: SimpleNamespace(id=10 * slot) for slot in range(5)}  # slot 4 newest
+    matcher = SimpleNamespace(map=SimpleNamespace(keyframes=keyframes))
+
+    def shares(config, frames):
+        matcher.config = config
+        reloc = Relocalizer(None, config, matcher)
+        out = [reloc._share() for _ in range(frames)]
+        reloc.restart()
+        return out, reloc._share()
+
+    got, after_restart = shares(TrackerConfig(reloc_keyframes_per_frame=2), 5)
+    assert got == [([4, 3], False), ([2, 1], False), ([0], False), ([], True), ([4, 3], False)]
+    assert after_restart == ([4, 3], False)
+    got, _ = shares(TrackerConfig(reloc_keyframes_per_frame=2, reloc_features=False), 4)
+    assert got == [([4, 3], False), ([2, 1], False), ([0], False), ([4, 3], False)]
+    got, _ = shares(TrackerConfig(reloc_keyframes_per_frame=0), 2)
+    assert got == [([4, 3, 2, 1, 0], True)] * 2

@@ -49,6 +49,7 @@ LIMITS = {
     "reloc_min_turn_rate_deg_s": interval(0, 100_000),
     "reloc_max_move_depths": interval(above=0, high=1000),
     "reloc_max_keyframes": interval(0, 1000, why="0: all"),
+    "reloc_keyframes_per_frame": interval(0, 1000, why="0: all on every lost frame"),
     "ransac_reference_width_px": interval(1, 100_000),
     "reloc_orb_max_distance": interval(0, 256, why="bits of a 256-bit descriptor"),
     "reloc_feature_keyframes": SOME,

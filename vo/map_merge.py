@@ -97,8 +97,10 @@ class MapMerger:
     def __init__(self, camera: CameraModel, config: TrackerConfig, reprojector: Reprojector):
         self.camera, self.config, self.reprojector = camera, config, reprojector
         # relocalisation into the old map for merging: a weaker match count than for a lost
-        # frame, as two relocalisations must agree on the whole similarity
-        self.reloc_config = replace(config, reloc_min_matches=config.merge_min_matches)
+        # frame, as two relocalisations must agree on the whole similarity; tries come seconds
+        # apart, so each tries every keyframe
+        self.reloc_config = replace(config, reloc_min_matches=config.merge_min_matches,
+                                    reloc_keyframes_per_frame=0)
         self.retired: Retired | None = None
         self.estimate: Similarity | None = None
         self.last_try = -np.inf

@@ -28,6 +28,11 @@ class Relocalizer:
         self.camera, self.config, self.matcher = camera, config, matcher
         self.map = matcher.map
         self.features = FeatureRelocalizer(matcher)
+        self.cursor = 0  # reloc_keyframes_per_frame: where the next lost frame's share starts
+
+    def restart(self) -> None:
+        """A new loss: the next lost frame's share starts at the newest keyframe."""
+        self.cursor = 0
 
     def find(self, frame: Frame, timings: dict[str, float], last: Frame | None = None
              ) -> tuple[Matches, np.ndarray] | None:
@@ -51,11 +56,32 @@ class Relocalizer:
         reference that explains its patches well enough, then (reloc_features) PnP on ORB
         matches."""
         cfg = self.config
-        for ref, ids, px in self._references(last):
+        slots, features = self._share()
+        for ref, ids, px in self._references(last, slots):
             if self._align_to_reference(frame, ref, ids, px) < cfg.reloc_max_residual_ratio:
                 yield frame.T_c_w
-        if cfg.reloc_features:
+        if cfg.reloc_features and features:
             yield from self.features.poses(frame)
+
+    def _share(self) -> tuple[list[int], bool]:
+        """The keyframe slots this lost frame aligns to, newest first (at most
+        reloc_max_keyframes, 0 = all), and whether it tries the ORB step: all of them and yes,
+        or with reloc_keyframes_per_frame the next share from the cursor, and the ORB step
+        alone once every share was tried."""
+        cfg = self.config
+        slots = sorted(self.map.keyframes, key=lambda s: -self.map.keyframes[s].id)
+        if cfg.reloc_max_keyframes > 0:
+            slots = slots[:cfg.reloc_max_keyframes]
+        n = cfg.reloc_keyframes_per_frame
+        if n <= 0:
+            return slots, True
+        if self.cursor >= len(slots):
+            self.cursor = 0
+            if cfg.reloc_features:
+                return [], True
+        share = slots[self.cursor:self.cursor + n]
+        self.cursor += n
+        return share, False
 
     def _verified(self, frame: Frame) -> tuple[Matches, np.ndarray] | None:
         """The map's points matched from frame's pose prior, refined: with its covariance when
@@ -68,16 +94,12 @@ class Relocalizer:
         cov = pose_covariance(m.H, m.sigma, orthonormalized(m.T))
         return (m, cov) if _rotation_std_deg(cov) <= cfg.reloc_max_rotation_std_deg else None
 
-    def _references(self, last: Frame | None):
+    def _references(self, last: Frame | None, slots: list[int]):
         """(frame, point ids, level-0 pixels) to align a lost frame to: the last tracked frame
         and its matched points (with reloc_last_frame, unless it is a keyframe), then the
-        keyframes, newest first (at most reloc_max_keyframes, 0 = all)."""
-        cfg = self.config
-        if cfg.reloc_last_frame and last is not None and not last.is_keyframe:
+        keyframes in `slots`."""
+        if self.config.reloc_last_frame and last is not None and not last.is_keyframe:
             yield last, last.feat_point, last.feat_px
-        slots = sorted(self.map.keyframes, key=lambda s: -self.map.keyframes[s].id)
-        if cfg.reloc_max_keyframes > 0:
-            slots = slots[:cfg.reloc_max_keyframes]
         for slot in slots:
             yield (self.map.keyframes[slot], *self.map.observed_by(slot))
 

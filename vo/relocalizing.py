@@ -38,8 +38,9 @@ class Relocalizing:
         self.candidate: Candidate | None = None
 
     def reset(self) -> None:
-        """Tracking was lost anew: no candidate."""
+        """Tracking was lost anew: no candidate, the keyframes tried from the newest."""
         self.candidate = None
+        self.relocalizer.restart()
 
     def step(self, frame: Frame, timings: dict[str, float], last: Frame | None
              ) -> tuple[FrameResult, bool]:
