@@ -24,14 +24,24 @@ DATA_DIR = shared_data_dir()
 REAL_SEQUENCES = ("tum_fr1_rpy", "vamr_ex01_checkerboard736", "kitti00_first200")
 
 
+PRECOMPILE_TIMEOUT_S = 1200  # 43 s on a clean clone here; a small board is several times slower
+
+
 def pytest_configure(config: pytest.Config) -> None:
     """With xdist workers, fill numba's cache once before they start (tests/precompile.py, its
     parts side by side), so they load the common kernels instead of each compiling them."""
-    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
+    if (hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None)
+            or config.option.collectonly or config.option.help):
         return
     script = Path(__file__).with_name("precompile.py")
     parts = [subprocess.Popen([sys.executable, str(script), part]) for part in ("tracker", "scene")]
-    if any([p.wait() != 0 for p in parts]):
+    try:
+        failed = any([p.wait(PRECOMPILE_TIMEOUT_S) != 0 for p in parts])
+    except subprocess.TimeoutExpired:
+        for p in parts:
+            p.kill()
+        pytest.exit(f"compiling the numba kernels took over {PRECOMPILE_TIMEOUT_S} s", 1)
+    if failed:
         pytest.exit("compiling the numba kernels before the workers start failed (above)", 1)
 
 

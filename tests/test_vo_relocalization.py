@@ -187,3 +187,10 @@ def test_lost_frames_share_the_keyframes_then_try_orb():
     assert got == [([4, 3], False), ([2, 1], False), ([0], False), ([4, 3], False)]
     got, _ = shares(TrackerConfig(reloc_keyframes_per_frame=0), 2)
     assert got == [([4, 3, 2, 1, 0], True)] * 2
+    # a keyframe the mapping adds while lost waits for the next round, none is tried twice
+    matcher.config = TrackerConfig(reloc_keyframes_per_frame=2)
+    reloc = Relocalizer(None, matcher.config, matcher)
+    assert reloc._share() == ([4, 3], False)
+    keyframes[5] = SimpleNamespace(id=50)
+    assert [reloc._share() for _ in range(3)] == [([2, 1], False), ([0], False), ([], True)]
+    assert reloc._share() == ([5, 4], False)

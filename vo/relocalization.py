@@ -28,19 +28,22 @@ class Relocalizer:
         self.camera, self.config, self.matcher = camera, config, matcher
         self.map = matcher.map
         self.features = FeatureRelocalizer(matcher)
-        self.cursor = 0  # reloc_keyframes_per_frame: where the next lost frame's share starts
+        # reloc_keyframes_per_frame: the next lost frame's share are keyframes older than this
+        # id (by id, not position: the mapping can add or cull keyframes while lost)
+        self.older_than = np.inf
 
     def restart(self) -> None:
         """A new loss: the next lost frame's share starts at the newest keyframe."""
-        self.cursor = 0
+        self.older_than = np.inf
 
     def find(self, frame: Frame, timings: dict[str, float], last: Frame | None = None
              ) -> tuple[Matches, np.ndarray] | None:
         """The first reference that gives frame a pose: the last tracked frame `last` (a fast
         turn loses the track where the camera still stands, often far from any keyframe),
         then the keyframes, newest first, by direct alignment; then (reloc_features) the
-        keyframes by ORB matches and PnP. Returns the matches (the refined pose in them) and
-        the pose's covariance; None when no reference does."""
+        keyframes by ORB matches and PnP. With reloc_keyframes_per_frame, this frame's share
+        of that (see _share). Returns the matches (the refined pose in them) and the pose's
+        covariance; None when no reference does."""
         t0 = time.perf_counter()
         found = None
         for T in self._priors(frame, last):
@@ -66,8 +69,9 @@ class Relocalizer:
     def _share(self) -> tuple[list[int], bool]:
         """The keyframe slots this lost frame aligns to, newest first (at most
         reloc_max_keyframes, 0 = all), and whether it tries the ORB step: all of them and yes,
-        or with reloc_keyframes_per_frame the next share from the cursor, and the ORB step
-        alone once every share was tried."""
+        or with reloc_keyframes_per_frame the next share older than the last one, and the ORB
+        step without keyframes once every share was tried (the last tracked frame is tried on
+        every lost frame)."""
         cfg = self.config
         slots = sorted(self.map.keyframes, key=lambda s: -self.map.keyframes[s].id)
         if cfg.reloc_max_keyframes > 0:
@@ -75,12 +79,14 @@ class Relocalizer:
         n = cfg.reloc_keyframes_per_frame
         if n <= 0:
             return slots, True
-        if self.cursor >= len(slots):
-            self.cursor = 0
+        older = [s for s in slots if self.map.keyframes[s].id < self.older_than]
+        if not older:
+            self.older_than = np.inf
             if cfg.reloc_features:
                 return [], True
-        share = slots[self.cursor:self.cursor + n]
-        self.cursor += n
+            older = slots
+        share = older[:n]
+        self.older_than = self.map.keyframes[share[-1]].id if share else np.inf
         return share, False
 
     def _verified(self, frame: Frame) -> tuple[Matches, np.ndarray] | None:
