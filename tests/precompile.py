@@ -15,21 +15,17 @@ import numpy as np
 
 
 def tracker() -> None:
-    """The tracker's kernels: the warm-up pan (vo.warm_up) through the default tracker, then
+    """The tracker's kernels: the service's warm-up pan through the default tracker, then
     through one with ORB matching and local bundle adjustment."""
     from calib.camera import CameraModel
+    from daemon.run_command import warm_up
     from vo.config import TrackerConfig
     from vo.tracker import Tracker
-    from vo.warm_up import warm_up
 
     width, height = 320, 240
     camera = CameraModel(width, height, 300.0, 300.0, width / 2, height / 2)
     for config in (TrackerConfig(), TrackerConfig(matcher="orb", local_ba=True)):
-        tracker = Tracker(camera, config)
-        try:
-            warm_up(tracker.process, width, height)
-        finally:
-            tracker.close()
+        warm_up(lambda _frame, config=config: Tracker(camera, config), width, height)
 
 
 def scene() -> None:
@@ -42,8 +38,7 @@ def scene() -> None:
 
     sequence = synthetic_sequence("room-handheld", frames=2, size=(64, 48),
                                   textures="procedural")
-    for t, image in sequence.frames():
-        assert np.isfinite(image).all()
+    for t, _image in sequence.frames():
         depth = sequence.depth_at(t)
     camera = sequence.camera
     register_depth(depth, camera, CameraModel(32, 24, 25.0, 25.0, 16.0, 12.0), np.eye(4))
