@@ -253,11 +253,10 @@ def test_rejection_keeps_people_who_walk_off_out_of_the_pose():
     assert with_rejection <= 5.0 * runs["empty"][0]
 
 
-def test_the_gate_whitens_only_candidates_likely_inliers():
-    """ransac_whitening_min_inlier: of three matches with the same whitening, the candidate the
-    depth filter holds likely an inlier is judged whitened; the unlikely candidate and the
-    converged point are judged plainly; without the option all are whitened, and without
-    ransac_depth_whitening none."""
+def _three_matches():
+    """A MapMatcher factory (by TrackerConfig options) over a map of three points: a candidate
+    its depth filter holds likely an inlier (0.8), an unlikely candidate (0.2), a converged
+    point (0.8); their ids and one whitening for all three."""
     from calib.camera import CameraModel
     from vo.map import CONVERGED, Map
     from vo.map_matching import MapMatcher
@@ -268,16 +267,45 @@ def test_the_gate_whitens_only_candidates_likely_inliers():
     ids = map_.points.add(0, np.zeros(3), np.zeros(3), np.zeros(3, np.int64),
                           np.tile([0.0, 0.0, 1.0], (3, 1)), np.ones(3), np.full(3, 0.5),
                           np.ones(3), 10.0, 10.0, np.eye(4))
-    map_.points.a[ids], map_.points.b[ids] = [8.0, 2.0, 8.0], [2.0, 8.0, 2.0]  # 0.8, 0.2, 0.8
+    map_.points.a[ids], map_.points.b[ids] = [8.0, 2.0, 8.0], [2.0, 8.0, 2.0]
     map_.points.status[ids[2]] = CONVERGED
-    whiten = np.tile(np.diag([0.1, 1.0]), (3, 1, 1))
+
+    def matcher(**options):
+        config = TrackerConfig(**options)
+        return MapMatcher(camera, config, map_, Reprojector(camera, config))
+
+    return matcher, ids, np.tile(np.diag([0.1, 1.0]), (3, 1, 1))
+
+
+def test_the_gate_whitens_only_candidates_likely_inliers():
+    """ransac_whitening_min_inlier: of three matches with the same whitening, the candidate the
+    depth filter holds likely an inlier is judged whitened; the unlikely candidate and the
+    converged point are judged plainly; without the option all are whitened, and without
+    ransac_depth_whitening none."""
+    matcher, ids, whiten = _three_matches()
 
     def judged(**options):
-        config = TrackerConfig(**options)
-        return MapMatcher(camera, config, map_, Reprojector(camera, config))._judged(ids, whiten)
+        return matcher(**options)._judged(ids, whiten)
 
     gated = judged(ransac_depth_whitening=True, ransac_whitening_min_inlier=0.5)
     assert np.array_equal(gated[0], whiten[0])
     assert np.array_equal(gated[1:], np.tile(np.eye(2), (2, 1, 1)))
     assert np.array_equal(judged(ransac_depth_whitening=True), whiten)
     assert np.array_equal(judged(), np.tile(np.eye(2), (3, 1, 1)))
+
+
+def test_the_rescue_whitens_candidates_and_leaves_converged_points_as_ransac_judged():
+    """rescue_depth_whitening: the rescue judges both candidates whitened (with
+    rescue_whitening_min_inlier 0.5 only the likely one) and the converged point as RANSAC
+    did; without it, as RANSAC did."""
+    matcher, ids, whiten = _three_matches()
+    plain = np.tile(np.eye(2), (3, 1, 1))
+
+    def rescue(**options):
+        return matcher(**options)._rescue_judged(ids, whiten, plain)
+
+    assert np.array_equal(rescue(), plain)
+    every = rescue(rescue_depth_whitening=True)
+    assert np.array_equal(every[:2], whiten[:2]) and np.array_equal(every[2], np.eye(2))
+    gated = rescue(rescue_depth_whitening=True, rescue_whitening_min_inlier=0.5)
+    assert np.array_equal(gated[0], whiten[0]) and np.array_equal(gated[1:], plain[1:])

@@ -93,6 +93,14 @@ class TrackerConfig:
     # inliers (a / (a + b)) are judged whitened; 0.5 kept movers out, helped kitti00 (6 of 10
     # seeds), not tum or the synthetic presets (RESULTS.md: tracker-ransac-gate-*)
     ransac_whitening_min_inlier: float = 0.0
+    # the rescue judges candidates whitened for their depth (converged points plain), with
+    # rescue_whitening_min_inlier above 0 only those their filter holds at least that likely
+    # inliers: on tum_fr1_rpy newly converged points outvoted 70-80 candidates and a well
+    # tracked turn was lost. On, tum keeps one map on 5 of 10 tracker seeds (2 off), but the
+    # synthetic presets lose 30-65% in ATE and the walkers come back into the pose (gate 0), or
+    # kitti00 loses 21% (0.5): off (RESULTS.md: tracker-rescue-whitened)
+    rescue_depth_whitening: bool = False
+    rescue_whitening_min_inlier: float = 0.0
     # with outlier rejection, a point matched but rejected this many tracked frames in a row
     # leaves the map (a person who stood while mapped and walked off: its many finds kept it
     # first in its grid cell); 10 kept such points too long (RESULTS.md:

@@ -106,6 +106,7 @@ LIMITS = {
     "match_max_level": LEVEL,
     "min_inlier_probability": SHARE,
     "ransac_whitening_min_inlier": SHARE,
+    "rescue_whitening_min_inlier": SHARE,
     "depth_noise_per_m2": interval(above=0, high=1),
     "depth_edge_rel": interval(0, 10),
     "seed": interval(0, 2**32 - 1, why="numpy's seeds are non-negative 32-bit"),

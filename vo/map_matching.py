@@ -94,7 +94,7 @@ class MapMatcher:
         rejecting = cfg.outlier_rejection and len(ids) > outlier_rejection.SUBSET
         if rejecting:
             t0 = time.perf_counter()
-            judged = self._judged(ids, whiten)  # RANSAC's and the rescue's
+            judged = self._judged(ids, whiten)  # RANSAC's
             use, m.n_hypotheses = self._reject_outliers(frame, ids, obs, levels, judged,
                                                          whole[0])
             timings["ransac"] = ms_since(t0)
@@ -107,7 +107,8 @@ class MapMatcher:
         T, H, sigma, err = fit(use)
         if rejecting:
             # rescue: outliers within a wider threshold of the inlier pose join them
-            use = self._errors(ids, obs, judged, T) * self.focal < self.rescue_px
+            rescue = self._rescue_judged(ids, whiten, judged)
+            use = self._errors(ids, obs, rescue, T) * self.focal < self.rescue_px
             T, H, sigma, err = fit(use)
         m.T, m.H, m.sigma = T, H, sigma
         m.inlier[use] = err * self.focal < cfg.reprojection_inlier_px
@@ -199,21 +200,41 @@ class MapMatcher:
         return np.sqrt(outlier_rejection.squared_errors(pos, obs, judged, T_c_w))
 
     def _judged(self, ids: np.ndarray, whiten: np.ndarray) -> np.ndarray:
-        """The whitening RANSAC and the rescue judge the matches of points ids by: none
-        without ransac_depth_whitening; with it the depth whitening, of every match or (a
-        ransac_whitening_min_inlier above 0) only of candidates the depth filter holds at
-        least that likely inliers."""
+        """The whitening RANSAC (and the rescue, before _rescue_judged) judges the matches of
+        points ids by: none without ransac_depth_whitening; with it the depth whitening, of
+        every match or (a ransac_whitening_min_inlier above 0) only of candidates the depth
+        filter holds at least that likely inliers."""
         cfg = self.config
         plain = np.broadcast_to(np.eye(2), whiten.shape).copy()
         if not cfg.ransac_depth_whitening:
             return plain
         if cfg.ransac_whitening_min_inlier <= 0.0:
             return whiten
-        pts = self.map.points
-        likely = pts.a[ids] >= cfg.ransac_whitening_min_inlier * (pts.a[ids] + pts.b[ids])
-        keep = likely & (pts.status[ids] == CANDIDATE)
+        keep = self._likely_candidates(ids, cfg.ransac_whitening_min_inlier)
         plain[keep] = whiten[keep]
         return plain
+
+    def _rescue_judged(self, ids: np.ndarray, whiten: np.ndarray,
+                       judged: np.ndarray) -> np.ndarray:
+        """The whitening the rescue judges the matches of points ids by: RANSAC's, and with
+        rescue_depth_whitening the depth whitening for the candidates the depth filter holds
+        at least rescue_whitening_min_inlier likely inliers (such a candidate's match may lie
+        anywhere along its depth interval, as the pose refinement allows; a mover's depth
+        keeps failing its filter)."""
+        cfg = self.config
+        if not cfg.rescue_depth_whitening:
+            return judged
+        keep = self._likely_candidates(ids, cfg.rescue_whitening_min_inlier)
+        out = judged.copy()
+        out[keep] = whiten[keep]
+        return out
+
+    def _likely_candidates(self, ids: np.ndarray, min_inlier: float) -> np.ndarray:
+        """Which points of ids are candidates their depth filter holds at least min_inlier
+        likely inliers (a / (a + b))."""
+        pts = self.map.points
+        likely = pts.a[ids] >= min_inlier * (pts.a[ids] + pts.b[ids])
+        return likely & (pts.status[ids] == CANDIDATE)
 
     def _reject_outliers(self, frame: Frame, ids: np.ndarray, obs: np.ndarray,
                          levels: np.ndarray, judged: np.ndarray,
