@@ -309,3 +309,50 @@ def test_the_rescue_whitens_candidates_and_leaves_converged_points_as_ransac_jud
     assert np.array_equal(every[:2], whiten[:2]) and np.array_equal(every[2], np.eye(2))
     gated = rescue(rescue_depth_whitening=True, rescue_whitening_min_inlier=0.5)
     assert np.array_equal(gated[0], whiten[0]) and np.array_equal(gated[1:], plain[1:])
+
+
+def test_quality_counts_candidates_consistent_along_their_depth_intervals():
+    """12 converged points agree on the pose; 60 candidates, placed 2.5-4x too far, are
+    37-75 px off it along their epipolar lines, inside their depth intervals. RANSAC keeps them
+    out of the pose (at most 12 inliers of 72: a bad frame); quality_depth_whitening counts
+    them as consistent with it (a good frame), and the pose's matches stay RANSAC's."""
+    from calib.camera import CameraModel
+    from vo.frame import Frame
+    from vo.map import CONVERGED, Map
+    from vo.map_matching import MapMatcher, Matches
+    from vo.reprojector import Reprojector
+    from vo.result import Quality
+
+    rng = np.random.default_rng(3)
+    camera = CameraModel(640, 480, 500.0, 500.0, 319.5, 239.5)
+    map_ = Map(640, 480, 72, 4)
+    n_conv, n_cand = 12, 60
+    px = rng.uniform([60, 60], [580, 420], (n_conv + n_cand, 2))
+    f = camera.unproject(px)
+    depth_true = np.concatenate((np.full(n_conv, 2.0), rng.uniform(0.5, 0.8, n_cand)))
+    rho = np.concatenate((1.0 / depth_true[:n_conv], np.full(n_cand, 0.5)))  # candidates at 2 m
+    sigma = np.concatenate((np.full(n_conv, 1e-3), np.full(n_cand, 0.75)))
+    ids = map_.points.add(0, px[:, 0], px[:, 1], np.zeros(len(px), np.int64), f, rho, sigma,
+                          np.ones(len(px)), 10.0, 10.0, np.eye(4))
+    map_.points.status[ids[:n_conv]] = CONVERGED
+    T_c_w = np.eye(4)
+    T_c_w[0, 3] = -0.1  # the camera moved 0.1 m sideways from its host keyframe
+    truth = f * depth_true[:, None] / f[:, 2:]
+    uv = camera.project(truth @ T_c_w[:3, :3].T + T_c_w[:3, 3])
+
+    def refined(**options):
+        config = TrackerConfig(outlier_rejection=True, **options)
+        matcher = MapMatcher(camera, config, map_, Reprojector(camera, config))
+        frame = Frame(1, 0.0, np.zeros((480, 640), np.uint8), camera, 1)
+        frame.T_c_w = T_c_w.copy()
+        m = Matches(ids, uv, np.zeros(len(ids), np.int64), len(ids), len(ids), ids,
+                    np.zeros(len(ids), bool), T_c_w, None, 0.0)
+        matcher._refine(frame, m, {})
+        return m, matcher.quality(m)
+
+    plain, plain_quality = refined(quality_depth_whitening=False)
+    counted, counted_quality = refined()
+    assert np.array_equal(plain.inlier, counted.inlier) and np.array_equal(plain.T, counted.T)
+    assert counted.inlier[:n_conv].sum() >= n_conv - 2 and not counted.inlier[n_conv:].any()
+    assert plain_quality == Quality.BAD
+    assert counted.n_supported >= 0.8 * len(ids) and counted_quality == Quality.GOOD

@@ -41,6 +41,9 @@ class Matches:
     H: np.ndarray | None
     sigma: float
     n_hypotheses: int = 0
+    # matches within reprojection_inlier_px of the pose as its refinement judges them (depth
+    # whitened, at their level) whether or not outlier rejection let them into it
+    n_supported: int = 0
 
     @property
     def n_inliers(self) -> int:
@@ -112,12 +115,18 @@ class MapMatcher:
             T, H, sigma, err = fit(use)
         m.T, m.H, m.sigma = T, H, sigma
         m.inlier[use] = err * self.focal < cfg.reprojection_inlier_px
+        if cfg.quality_depth_whitening:
+            at_level = whiten / 2.0 ** levels[:, None, None]  # the fit's errors are level-scaled
+            m.n_supported = int((self._errors(ids, obs, at_level, T) * self.focal
+                                 < cfg.reprojection_inlier_px).sum())
 
     def quality(self, m: Matches) -> Quality:
-        """Quality of 6.10; a match counts once it survives the pose refinement."""
+        """Quality of 6.10; a match counts once it survives the pose refinement (with
+        quality_depth_whitening, also when it is consistent with the pose as the refinement
+        judges matches but outlier rejection kept it out)."""
         if m.n_inliers < MIN_POSE_MATCHES:
             return Quality.BAD
-        return classify(m.n_inliers, m.n_attempts, self.config)
+        return classify(max(m.n_inliers, m.n_supported), m.n_attempts, self.config)
 
     def accept(self, frame: Frame, m: Matches, count: bool = True) -> None:
         """Give frame its refined pose and matches; with `count`, update the points'
