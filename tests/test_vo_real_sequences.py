@@ -42,9 +42,9 @@ def test_vamr_checkerboard_full(data_dir):
 
 
 def test_tum_rpy_runs_through(data_dir):
-    # fast rotations at 2-3.5 deg/frame: the map is lost near frame 188 and a new one taken,
-    # which joins the old one where the view comes back (vo.map_merge; RESULTS.md:
-    # tracker-map-merge): one segment, as issue 31 asks
+    # fast rotations at 2-3.5 deg/frame: the map is lost in one turn (frame 321 at 8571d3b)
+    # and a new one taken, which joins the old one where the view comes back (vo.map_merge;
+    # RESULTS.md: tracker-map-merge): one segment, as issue 31 asks
     _, est, qualities, segments = _track(data_dir / "tum_fr1_rpy")
     assert len(qualities) == 723
     assert segments == 1 and len(est) >= 680
