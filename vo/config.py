@@ -101,12 +101,12 @@ class TrackerConfig:
     # kitti00 loses 21% (0.5): off (RESULTS.md: tracker-rescue-whitened)
     rescue_depth_whitening: bool = False
     rescue_whitening_min_inlier: float = 0.0
-    # a frame's quality counts the matches consistent with its pose as the pose refinement
-    # judges them (depth whitened), also those RANSAC kept out of the pose: the pose and its
-    # covariance stay the consensus's, but a consensus of a few newly converged points among
-    # many candidates is no longer a bad frame (tum_fr1_rpy: one map on 5 of 10 tracker seeds,
-    # 2 without; RESULTS.md: tracker-quality-whitened)
-    quality_depth_whitening: bool = True
+    # a frame's quality also counts the matches consistent with its pose as the pose refinement
+    # judges them (depth whitened), not only RANSAC's consensus: tum_fr1_rpy keeps one map on 5
+    # of 10 tracker seeds (2 without), the rest unchanged; but whitening does not bound a
+    # candidate to its depth interval, so a consensus on a wrong translation was lifted to a
+    # good frame in review: off (RESULTS.md: tracker-quality-whitened)
+    quality_depth_whitening: bool = False
     # with outlier rejection, a point matched but rejected this many tracked frames in a row
     # leaves the map (a person who stood while mapped and walked off: its many finds kept it
     # first in its grid cell); 10 kept such points too long (RESULTS.md:
