@@ -42,7 +42,8 @@ class Matches:
     sigma: float
     n_hypotheses: int = 0
     # matches within reprojection_inlier_px of the pose as its refinement judges them (depth
-    # whitened, at their level) whether or not outlier rejection let them into it
+    # whitened, at their level) whether or not outlier rejection let them into it; counted
+    # only with quality_depth_whitening (0 without)
     n_supported: int = 0
 
     @property
