@@ -24,7 +24,7 @@ from sim.trajectory import Trajectory, write_tum
 from vo.result import Quality
 
 FRAME_COLUMNS = ("t", "quality", "matches", "attempts", "ransac_hypotheses", "inliers",
-                 "keyframe", "new_segment", "relocalized", "merged", "error_m")
+                 "keyframe", "new_segment", "relocalized", "merged", "held", "error_m")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -306,7 +306,8 @@ def frame_row(result) -> dict:
             "inliers": result.n_inliers, "keyframe": int(result.keyframe),
             "new_segment": int(result.new_segment),
             "relocalized": int(getattr(result, "relocalized", False)),
-            "merged": int(getattr(result, "merged", None) is not None), "error_m": ""}
+            "merged": int(getattr(result, "merged", None) is not None),
+            "held": int(getattr(result, "held", False)), "error_m": ""}
 
 
 def write_frames_csv(path: Path, rows: list[dict], groundtruth: Trajectory | None,

@@ -311,48 +311,77 @@ def test_the_rescue_whitens_candidates_and_leaves_converged_points_as_ransac_jud
     assert np.array_equal(gated[0], whiten[0]) and np.array_equal(gated[1:], plain[1:])
 
 
-def test_quality_counts_candidates_consistent_along_their_depth_intervals():
-    """12 converged points agree on the pose; 60 candidates, placed 2.5-4x too far, are
-    37-75 px off it along their epipolar lines, where their depth whitening forgives it. RANSAC
-    keeps them out of the pose (at most 12 inliers of 72: a bad frame); quality_depth_whitening
-    counts them as consistent with it (a good frame), and the pose's matches stay RANSAC's."""
+def _interval_scene(conv_depth: float, cand_sigma: float, tried: int = 100, **options):
+    """A frame 0.10 m sideways of its host keyframe matching 12 converged points 2 m away
+    (stored at conv_depth: at 3 m they agree on a wrong 0.15 m move) and 30 candidates stored
+    at 0.5 m with inverse depth sigma cand_sigma, truly 8-18 px off along their epipolar lines
+    (inverse depths 1.6-1.84 and 2.16-2.36), of `tried` points tried: a MapMatcher with outlier
+    rejection and `options`, the frame (at the true pose) and its matches."""
     from calib.camera import CameraModel
     from vo.frame import Frame
     from vo.map import CONVERGED, Map
     from vo.map_matching import MapMatcher, Matches
     from vo.reprojector import Reprojector
-    from vo.result import Quality
 
     rng = np.random.default_rng(3)
     camera = CameraModel(640, 480, 500.0, 500.0, 319.5, 239.5)
-    map_ = Map(640, 480, 72, 4)
-    n_conv, n_cand = 12, 60
+    map_ = Map(640, 480, 42, 4)
+    n_conv, n_cand = 12, 30
     px = rng.uniform([60, 60], [580, 420], (n_conv + n_cand, 2))
     f = camera.unproject(px)
-    depth_true = np.concatenate((np.full(n_conv, 2.0), rng.uniform(0.5, 0.8, n_cand)))
-    rho = np.concatenate((1.0 / depth_true[:n_conv], np.full(n_cand, 0.5)))  # candidates at 2 m
-    sigma = np.concatenate((np.full(n_conv, 1e-3), np.full(n_cand, 0.75)))
+    rho_true = np.concatenate((np.full(n_conv, 0.5), rng.uniform(1.6, 1.84, n_cand // 2),
+                               rng.uniform(2.16, 2.36, n_cand // 2)))
+    rho = np.concatenate((np.full(n_conv, 1.0 / conv_depth), np.full(n_cand, 2.0)))
+    sigma = np.concatenate((np.full(n_conv, 1e-3), np.full(n_cand, cand_sigma)))
     ids = map_.points.add(0, px[:, 0], px[:, 1], np.zeros(len(px), np.int64), f, rho, sigma,
                           np.ones(len(px)), 10.0, 10.0, np.eye(4))
     map_.points.status[ids[:n_conv]] = CONVERGED
     T_c_w = np.eye(4)
-    T_c_w[0, 3] = -0.1  # the camera moved 0.1 m sideways from its host keyframe
-    truth = f * depth_true[:, None] / f[:, 2:]
+    T_c_w[0, 3] = -0.1
+    truth = f / rho_true[:, None]  # a point is its bearing over its inverse depth
     uv = camera.project(truth @ T_c_w[:3, :3].T + T_c_w[:3, 3])
+    config = TrackerConfig(outlier_rejection=True, **options)
+    matcher = MapMatcher(camera, config, map_, Reprojector(camera, config))
+    frame = Frame(1, 0.0, np.zeros((480, 640), np.uint8), camera, 1)
+    frame.T_c_w = T_c_w.copy()
+    m = Matches(ids, uv, np.zeros(len(ids), np.int64), tried, tried, ids,
+                np.zeros(len(ids), bool), T_c_w, None, 0.0)
+    return matcher, frame, m
 
+
+def _judged_at(move: float, conv_depth: float, cand_sigma: float):
+    """_interval_scene's frame judged at a pose `move` m sideways with the converged points
+    as its inliers: (matches on intervals that bound the move, on any, quality, held)."""
+    matcher, _, m = _interval_scene(conv_depth, cand_sigma, quality_depth_intervals=True)
+    m.T = np.eye(4)
+    m.T[0, 3] = -move
+    m.inlier[:12] = True
+    m.n_supported, m.n_along = matcher._supported(m.ids, matcher.normalised(m.uv), m.levels,
+                                                  m.T)
+    return m.n_supported, m.n_along, matcher.quality(m), matcher.held(m)
+
+
+def test_quality_counts_candidates_on_their_depth_intervals_that_bound_the_move():
+    """At the true pose the candidates whose 2-sigma interval (2 +- 0.4) holds their match
+    count: a good frame. At a consensus on a wrong move (0.15 m for 0.10) they do not: bad,
+    not held. Candidates whose interval reaches out to infinity (2 +- 3) are consistent with
+    either along their lines: they keep the frame to track on from (held), never good."""
+    from vo.result import Quality
+
+    assert _judged_at(0.10, 2.0, 0.2) == (42, 42, Quality.GOOD, False)
+    assert _judged_at(0.15, 3.0, 0.2) == (12, 12, Quality.BAD, False)
+    assert _judged_at(0.15, 3.0, 1.5) == (12, 42, Quality.BAD, True)
+    assert _judged_at(0.10, 2.0, 1.5) == (12, 42, Quality.BAD, True)
+
+
+def test_the_quality_count_leaves_the_pose_and_its_matches_to_ransac():
+    """With quality_depth_intervals the refined pose and its inliers are RANSAC's (of 200
+    points tried, too few for a good frame), and the matches along intervals are counted."""
     def refined(**options):
-        config = TrackerConfig(outlier_rejection=True, **options)
-        matcher = MapMatcher(camera, config, map_, Reprojector(camera, config))
-        frame = Frame(1, 0.0, np.zeros((480, 640), np.uint8), camera, 1)
-        frame.T_c_w = T_c_w.copy()
-        m = Matches(ids, uv, np.zeros(len(ids), np.int64), len(ids), len(ids), ids,
-                    np.zeros(len(ids), bool), T_c_w, None, 0.0)
+        matcher, frame, m = _interval_scene(2.0, 0.2, 200, **options)
         matcher._refine(frame, m, {})
-        return m, matcher.quality(m)
+        return m
 
-    plain, plain_quality = refined()
-    counted, counted_quality = refined(quality_depth_whitening=True)
+    plain, counted = refined(quality_depth_intervals=False), refined()
     assert np.array_equal(plain.inlier, counted.inlier) and np.array_equal(plain.T, counted.T)
-    assert counted.inlier[:n_conv].sum() >= n_conv - 2 and not counted.inlier[n_conv:].any()
-    assert plain_quality == Quality.BAD
-    assert counted.n_supported >= 0.8 * len(ids) and counted_quality == Quality.GOOD
+    assert plain.n_along == 0 and counted.n_supported >= counted.n_inliers > 12

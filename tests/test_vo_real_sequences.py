@@ -42,7 +42,7 @@ def test_vamr_checkerboard_full(data_dir):
 
 
 def test_tum_rpy_runs_through(data_dir):
-    # fast rotations at 2-3.5 deg/frame: the map is lost in one turn (frame 321 at 8571d3b)
+    # fast rotations at 2-3.5 deg/frame: the map is lost in one turn (frame 190, haswell)
     # and a new one taken, which joins the old one where the view comes back (vo.map_merge;
     # RESULTS.md: tracker-map-merge): one segment, as issue 31 asks
     _, est, qualities, segments = _track(data_dir / "tum_fr1_rpy")

@@ -107,6 +107,8 @@ LIMITS = {
     "min_inlier_probability": SHARE,
     "ransac_whitening_min_inlier": SHARE,
     "rescue_whitening_min_inlier": SHARE,
+    "quality_interval_width": interval(0, below=1,
+                                       why="from 1 on, an interval may reach out to infinity"),
     "depth_noise_per_m2": interval(above=0, high=1),
     "depth_edge_rel": interval(0, 10),
     "seed": interval(0, 2**32 - 1, why="numpy's seeds are non-negative 32-bit"),

@@ -53,21 +53,31 @@ class FrameTracking:
                              n_attempts=m.n_attempts, n_inliers=m.n_inliers,
                              n_hypotheses=m.n_hypotheses, rotation_prior=use)
         if quality == Quality.BAD:
-            if self.lost.update(quality):
+            if self.matcher.held(m):
+                # tracked on from, not published, and not a step towards lost
+                self.matcher.accept(frame, m, count=False)
+                self._moved_to(frame, last)
+                result.held = True
+            elif self.lost.update(quality):
                 result.quality = Quality.LOST
             return result, False
         self.lost.update(quality)
         self.matcher.accept(frame, m)
-        self.motion = frame.T_c_w @ inv_se3(last.T_c_w)
-        dt = frame.t - last.t
-        self.motion_s = max(dt, 0.0)
-        self.turn_rate = rotation_angle_deg(self.motion[:3, :3]) / dt if dt > 0 else 0.0
-        self.last = frame
+        self._moved_to(frame, last)
         n_seen = m.n_inliers if cfg.kf_count_inliers else m.n_visible
         keyframe = self.keyframes.due(n_seen, quality == Quality.GOOD, frame)
         result.T_w_c = frame.T_w_c
         result.covariance = pose_covariance(m.H, m.sigma, result.T_w_c)
         return result, keyframe
+
+    def _moved_to(self, frame: Frame, last: Frame) -> None:
+        """Frame, its pose accepted, is the last frame: the motion from `last` to it is the
+        constant-velocity model's."""
+        self.motion = frame.T_c_w @ inv_se3(last.T_c_w)
+        dt = frame.t - last.t
+        self.motion_s = max(dt, 0.0)
+        self.turn_rate = rotation_angle_deg(self.motion[:3, :3]) / dt if dt > 0 else 0.0
+        self.last = frame
 
     def _align(self, frame: Frame, last: Frame) -> PriorUse:
         """Sparse image alignment to the last frame from the predicted pose: the constant-

@@ -44,10 +44,12 @@ class FrameResult:
     increments its reset counter as on any discontinuity).
     `n_attempts` counts the map points matching tried (the quality ratio's denominator),
     `n_hypotheses` the RANSAC hypotheses outlier rejection fitted (0 without it),
-    `rotation_prior` how the caller's orientation was used. `earlier` holds late poses of
-    frames before this one, oldest first: on a new map's first result, the frames its
-    initialiser waited through (vo.late_poses), whose own results had none; when the first
-    of them has new_segment, the new segment starts there and this frame goes on with it.
+    `rotation_prior` how the caller's orientation was used. `held` marks a bad frame tracking
+    goes on from though it has no pose to publish (vo.map_matching, MapMatcher.held).
+    `earlier` holds late poses of frames before this one, oldest first: on a new map's first
+    result, the frames its initialiser waited through (vo.late_poses), whose own results had
+    none; when the first of them has new_segment, the new segment starts there and this frame
+    goes on with it.
     A live consumer has sent those frames' results already and does not publish them.
     `merged` (vo.map_merge.Similarity) is set when, since the previous result, the map before
     the newest re-initialisation was joined to the one after it (vo.map_merge): it takes the
@@ -70,6 +72,7 @@ class FrameResult:
     keyframe: bool = field(default=False, kw_only=True)
     n_hypotheses: int = field(default=0, kw_only=True)
     rotation_prior: PriorUse = field(default=PriorUse.NONE, kw_only=True)
+    held: bool = field(default=False, kw_only=True)
     earlier: list[FrameResult] = field(default_factory=list, kw_only=True)
     merged: Similarity | None = field(default=None, kw_only=True)
 
