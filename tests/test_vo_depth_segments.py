@@ -34,11 +34,18 @@ def test_segment_distances_agree_with_points_sampled_along_the_interval():
     rho = rng.uniform(0.2, 2.0, n)
     half = rho * rng.uniform(0.0, 1.3, n)  # a quarter reach out to infinity
     obs = rng.uniform(-0.6, 0.6, (n, 2))
+    # half of them a few pixels (at 500 px) from a point on their segment
+    near = np.arange(n) < n // 2
+    for i in np.flatnonzero(near):
+        T = T_c_w @ np.linalg.inv(kf[host[i]])
+        X = T[:3, :3] @ f[i] + rng.uniform(max(rho[i] - half[i], 0.0), rho[i] + half[i]) * T[:3, 3]
+        obs[i] = X[:2] / X[2] + rng.normal(0.0, 3.0 / 500.0, 2)
     got = segment_distances(T_c_w, kf, host, f, rho, half, obs)
     want = _reference(T_c_w, kf, host, f, rho, half, obs)
     assert np.array_equal(np.isinf(got), np.isinf(want))
     finite = np.isfinite(want)
     assert np.allclose(got[finite], want[finite], atol=2e-4)
+    assert (got[near & finite] < 10.0 / 500.0).mean() > 0.9  # the near ones are near
 
 
 def test_a_match_anywhere_on_its_interval_is_on_it_and_beyond_it_is_not():

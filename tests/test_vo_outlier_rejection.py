@@ -349,39 +349,53 @@ def _interval_scene(conv_depth: float, cand_sigma: float, tried: int = 100, **op
     return matcher, frame, m
 
 
-def _judged_at(move: float, conv_depth: float, cand_sigma: float):
+def _judged_at(move: float, conv_depth: float, cand_sigma: float, across_px: float = 0.0,
+               level: int = 0):
     """_interval_scene's frame judged at a pose `move` m sideways with the converged points
-    as its inliers: (matches on intervals that bound the move, on any, quality, held)."""
-    matcher, _, m = _interval_scene(conv_depth, cand_sigma, quality_depth_intervals=True)
+    as its inliers, every match shifted across its epipolar line by across_px level-0
+    pixels and found at `level`: (matches along their intervals, quality, held)."""
+    matcher, _, m = _interval_scene(conv_depth, cand_sigma)
     m.T = np.eye(4)
     m.T[0, 3] = -move
     m.inlier[:12] = True
-    m.n_supported, m.n_along = matcher._supported(m.ids, matcher.normalised(m.uv), m.levels,
-                                                  m.T)
-    return m.n_supported, m.n_along, matcher.quality(m), matcher.held(m)
+    m.uv = m.uv + np.array([0.0, across_px])
+    m.levels[:] = level
+    m.n_along = matcher._along(m.ids, matcher.normalised(m.uv), m.levels, m.T)
+    return m.n_along, matcher.quality(m), matcher.held(m)
 
 
-def test_quality_counts_candidates_on_their_depth_intervals_that_bound_the_move():
-    """At the true pose the candidates whose 2-sigma interval (2 +- 0.4) holds their match
-    count: a good frame. At a consensus on a wrong move (0.15 m for 0.10) they do not: bad,
-    not held. Candidates whose interval reaches out to infinity (2 +- 3) are consistent with
-    either along their lines: they keep the frame to track on from (held), never good."""
+def test_a_bad_frame_is_held_when_its_matches_agree_along_their_depth_intervals():
+    """12 inliers of 100 tried: a bad frame, whatever the candidates say. At the true pose
+    the candidates lie on the segments their 2-sigma intervals (2 +- 0.4) project to: held
+    (tracked on from, not published). At a consensus on a wrong move (0.15 m for 0.10) they
+    do not: not held. Candidates whose interval reaches out to infinity (2 +- 3) agree with
+    either move along their lines: held, never published. 3 px across the lines is off at
+    level 0 and on at level 1 (2 px at the match's level)."""
     from vo.result import Quality
 
-    assert _judged_at(0.10, 2.0, 0.2) == (42, 42, Quality.GOOD, False)
-    assert _judged_at(0.15, 3.0, 0.2) == (12, 12, Quality.BAD, False)
-    assert _judged_at(0.15, 3.0, 1.5) == (12, 42, Quality.BAD, True)
-    assert _judged_at(0.10, 2.0, 1.5) == (12, 42, Quality.BAD, True)
+    assert _judged_at(0.10, 2.0, 0.2) == (42, Quality.BAD, True)
+    assert _judged_at(0.15, 3.0, 0.2) == (12, Quality.BAD, False)
+    assert _judged_at(0.15, 3.0, 1.5) == (42, Quality.BAD, True)
+    assert _judged_at(0.10, 2.0, 0.2, across_px=3.0) == (0, Quality.BAD, False)
+    assert _judged_at(0.10, 2.0, 0.2, across_px=3.0, level=1) == (42, Quality.BAD, True)
 
 
-def test_the_quality_count_leaves_the_pose_and_its_matches_to_ransac():
-    """With quality_depth_intervals the refined pose and its inliers are RANSAC's (of 200
-    points tried, too few for a good frame), and the matches along intervals are counted."""
-    def refined(**options):
-        matcher, frame, m = _interval_scene(2.0, 0.2, 200, **options)
+def test_holding_leaves_the_pose_and_its_matches_to_ransac():
+    """With candidates out to infinity (2 +- 3) RANSAC keeps them out of the pose: 12
+    inliers of 200 tried, a bad frame. hold_frames changes neither the pose, its inliers nor
+    its quality; it counts all 42 matches along their lines and holds the frame, also when
+    the converged points agree on the wrong 0.15 m move (which is never published)."""
+    from vo.result import Quality
+
+    def refined(conv_depth: float, **options):
+        matcher, frame, m = _interval_scene(conv_depth, 1.5, 200, **options)
         matcher._refine(frame, m, {})
-        return m
+        return m, matcher.quality(m), matcher.held(m)
 
-    plain, counted = refined(quality_depth_intervals=False), refined()
-    assert np.array_equal(plain.inlier, counted.inlier) and np.array_equal(plain.T, counted.T)
-    assert plain.n_along == 0 and counted.n_supported >= counted.n_inliers > 12
+    for conv_depth, move in ((2.0, 0.10), (3.0, 0.15)):
+        plain, plain_q, plain_held = refined(conv_depth, hold_frames=False)
+        m, quality, held = refined(conv_depth)
+        assert np.array_equal(plain.inlier, m.inlier) and np.array_equal(plain.T, m.T)
+        assert abs(m.T[0, 3] + move) < 0.005 and m.n_inliers == 12
+        assert plain_q == quality == Quality.BAD and not plain_held and plain.n_along == 0
+        assert held and m.n_along == 42

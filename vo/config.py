@@ -101,15 +101,14 @@ class TrackerConfig:
     # kitti00 loses 21% (0.5): off (RESULTS.md: tracker-rescue-whitened)
     rescue_depth_whitening: bool = False
     rescue_whitening_min_inlier: float = 0.0
-    # a frame's quality also counts the matches consistent with its pose, not only RANSAC's
-    # consensus: a match whose point bounds the translation (converged, or a candidate whose
-    # 2-sigma inverse-depth interval is at most quality_interval_width of its inverse depth
-    # either side) and that lies on the segment of its epipolar line the interval projects
-    # to; a bad frame consistent with enough matches along intervals out to infinity is held
-    # (tracked on from, not published). tum_fr1_rpy one map on 5 of 10 tracker seeds (2 off),
-    # the rest unchanged (RESULTS.md: tracker-quality-intervals)
-    quality_depth_intervals: bool = True
-    quality_interval_width: float = 0.25
+    # a bad frame whose pose enough matches agree with along their depth intervals (the
+    # segment of the epipolar line a 2-sigma interval projects to; out to infinity it allows
+    # any move) is held: tracked on from, not published, not a step towards lost, within
+    # hold_max_s of the last published frame (ArduPilot's AP_VISUALODOM_TIMEOUT_MS, 300 ms:
+    # longer, the autopilot holds vision unhealthy anyway). tum_fr1_rpy's fast turns
+    # (RESULTS.md: tracker-hold)
+    hold_frames: bool = True
+    hold_max_s: float = 0.3
     # with outlier rejection, a point matched but rejected this many tracked frames in a row
     # leaves the map (a person who stood while mapped and walked off: its many finds kept it
     # first in its grid cell); 10 kept such points too long (RESULTS.md:

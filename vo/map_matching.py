@@ -43,10 +43,8 @@ class Matches:
     sigma: float
     n_hypotheses: int = 0
     # matches consistent with the pose along their depth intervals whether or not outlier
-    # rejection let them into it (MapMatcher._supported): of points that bound the
-    # translation, and of any; counted only with quality_depth_intervals and when the
-    # inliers alone do not make a good frame (0 otherwise)
-    n_supported: int = 0
+    # rejection let them into it (MapMatcher._along); counted only with hold_frames and for
+    # a bad frame (0 otherwise)
     n_along: int = 0
 
     @property
@@ -119,24 +117,23 @@ class MapMatcher:
             T, H, sigma, err = fit(use)
         m.T, m.H, m.sigma = T, H, sigma
         m.inlier[use] = err * self.focal < cfg.reprojection_inlier_px
-        if cfg.quality_depth_intervals and classify(m.n_inliers, m.n_attempts,
-                                                    cfg) != Quality.GOOD:
-            m.n_supported, m.n_along = self._supported(ids, obs, levels, T)
+        if cfg.hold_frames and self.quality(m) == Quality.BAD:
+            m.n_along = self._along(ids, obs, levels, T)
 
     def quality(self, m: Matches) -> Quality:
-        """Quality of 6.10; a match counts once it survives the pose refinement (with
-        quality_depth_intervals, also when it is consistent with the pose along its point's
-        depth interval but outlier rejection kept it out)."""
+        """Quality of 6.10; a match counts once it survives the pose refinement."""
         if m.n_inliers < MIN_POSE_MATCHES:
             return Quality.BAD
-        return classify(max(m.n_inliers, m.n_supported), m.n_attempts, self.config)
+        return classify(m.n_inliers, m.n_attempts, self.config)
 
     def held(self, m: Matches) -> bool:
-        """Whether a bad frame's pose is worth keeping to track on from, unpublished: with
-        quality_depth_intervals, enough matches are consistent with it along their depth
-        intervals, though too few of them bound the translation (candidates whose interval
-        reaches out to infinity confirm a fast turn, not how far the camera moved)."""
-        if not self.config.quality_depth_intervals or self.quality(m) != Quality.BAD:
+        """Whether a bad frame's pose (from at least MIN_POSE_MATCHES inliers) is worth
+        keeping to track on from, unpublished (hold_frames): counting the matches consistent
+        with it along their depth intervals, it would not be bad. A candidate whose interval
+        reaches out to infinity confirms a fast turn, not how far the camera moved: such a
+        pose is never published (vo.frame_tracking)."""
+        if (not self.config.hold_frames or m.n_inliers < MIN_POSE_MATCHES
+                or self.quality(m) != Quality.BAD):
             return False
         return classify(max(m.n_inliers, m.n_along), m.n_attempts,
                         self.config) != Quality.BAD
@@ -175,22 +172,15 @@ class MapMatcher:
         return self._solve(T_c_w, np.eye(3), 0.0, ids, self.normalised(uv), levels,
                            self._whitening(T_c_w, ids))
 
-    def _supported(self, ids: np.ndarray, obs: np.ndarray, levels: np.ndarray,
-                   T_c_w: np.ndarray) -> tuple[int, int]:
+    def _along(self, ids: np.ndarray, obs: np.ndarray, levels: np.ndarray,
+               T_c_w: np.ndarray) -> int:
         """How many matches (normalised obs) lie within reprojection_inlier_px, at their level,
-        of the segment their point's 2-sigma inverse-depth interval projects to at pose T_c_w:
-        of the points that bound the translation (converged points and candidates whose
-        interval is at most quality_interval_width of their inverse depth either side: the
-        relative error of the translation from the host keyframe such a match can hide), and
-        of all."""
-        cfg, pts = self.config, self.map.points
-        half = 2.0 * pts.sigma[ids]
-        bounds = (pts.status[ids] == CONVERGED) | (half <= cfg.quality_interval_width
-                                                   * pts.rho[ids])
+        of the segment their point's 2-sigma inverse-depth interval projects to at pose T_c_w
+        (vo.depth_segments)."""
+        pts = self.map.points
         d = segment_distances(T_c_w, self.map.kf_T_c_w, pts.host[ids], pts.f[ids],
-                              pts.rho[ids], half, obs)
-        on = d * self.focal / 2.0 ** levels < cfg.reprojection_inlier_px
-        return int((on & bounds).sum()), int(on.sum())
+                              pts.rho[ids], 2.0 * pts.sigma[ids], obs)
+        return int((d * self.focal / 2.0 ** levels < self.config.reprojection_inlier_px).sum())
 
     def _whitening(self, T_c_w: np.ndarray, ids: np.ndarray) -> np.ndarray:
         """The matches' error whitening along their depth intervals at the pose T_c_w."""
