@@ -350,14 +350,15 @@ def _interval_scene(conv_depth: float, cand_sigma: float, tried: int = 100, **op
 
 
 def _judged_at(move: float, conv_depth: float, cand_sigma: float, across_px: float = 0.0,
-               level: int = 0):
-    """_interval_scene's frame judged at a pose `move` m sideways with the converged points
-    as its inliers, every match shifted across its epipolar line by across_px level-0
-    pixels and found at `level`: (matches along their intervals, quality, held)."""
+               level: int = 0, inliers: int = 12):
+    """_interval_scene's frame judged at a pose `move` m sideways with the first `inliers`
+    converged points as its inliers, every match shifted across its epipolar line by
+    across_px level-0 pixels and found at `level`: (matches along their intervals, quality,
+    held)."""
     matcher, _, m = _interval_scene(conv_depth, cand_sigma)
     m.T = np.eye(4)
     m.T[0, 3] = -move
-    m.inlier[:12] = True
+    m.inlier[:inliers] = True
     m.uv = m.uv + np.array([0.0, across_px])
     m.levels[:] = level
     m.n_along = matcher._along(m.ids, matcher.normalised(m.uv), m.levels, m.T)
@@ -370,7 +371,8 @@ def test_a_bad_frame_is_held_when_its_matches_agree_along_their_depth_intervals(
     (tracked on from, not published). At a consensus on a wrong move (0.15 m for 0.10) they
     do not: not held. Candidates whose interval reaches out to infinity (2 +- 3) agree with
     either move along their lines: held, never published. 3 px across the lines is off at
-    level 0 and on at level 1 (2 px at the match's level)."""
+    level 0 and on at level 1 (2 px at the match's level). A pose from 5 inliers is not
+    held, whatever agrees with it."""
     from vo.result import Quality
 
     assert _judged_at(0.10, 2.0, 0.2) == (42, Quality.BAD, True)
@@ -378,6 +380,7 @@ def test_a_bad_frame_is_held_when_its_matches_agree_along_their_depth_intervals(
     assert _judged_at(0.15, 3.0, 1.5) == (42, Quality.BAD, True)
     assert _judged_at(0.10, 2.0, 0.2, across_px=3.0) == (0, Quality.BAD, False)
     assert _judged_at(0.10, 2.0, 0.2, across_px=3.0, level=1) == (42, Quality.BAD, True)
+    assert _judged_at(0.10, 2.0, 0.2, inliers=5) == (42, Quality.BAD, False)
 
 
 def test_holding_leaves_the_pose_and_its_matches_to_ransac():

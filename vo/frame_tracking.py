@@ -32,7 +32,8 @@ class FrameTracking:
         self.matcher = matcher
         self.keyframes = keyframes
         self.last: Frame | None = None  # the last frame with a pose in this map
-        self.published: tuple[Frame, float] | None = None  # the last published, its turn rate
+        # the last frame published, and the motion, its time and turn rate up to it
+        self.published: tuple[Frame, np.ndarray, float, float] | None = None
         self.motion = np.eye(4)  # T_c_w of the last frame times the inverse of the one before
         self.motion_s = 0.0  # the time that motion took (0: none yet)
         self.intervals: deque[float] = deque(maxlen=PERIOD_INTERVALS)  # between frames seen
@@ -50,35 +51,37 @@ class FrameTracking:
         timings["align"] = ms_since(t0)
         m = self.matcher.match(frame, timings)
         quality = self.matcher.quality(m)
+        if quality == Quality.INSUFFICIENT and last is not self.published[0]:
+            quality = Quality.BAD  # after a hold only a good frame is published
         result = FrameResult(frame.t, None, quality, n_matches=len(m.ids),
                              n_attempts=m.n_attempts, n_inliers=m.n_inliers,
                              n_hypotheses=m.n_hypotheses, rotation_prior=use)
         if quality == Quality.BAD:
-            if self._holds(frame, m):
-                # tracked on from, not published, and not a step towards lost
-                self.matcher.accept(frame, m, count=False)
-                self._moved_to(frame, last)
-                result.held = True
-            elif self.lost.update(quality):
-                result.quality = Quality.LOST
-                # relocalisation and a new map judge from the last pose published
-                self.last, self.turn_rate = self.published
+            self._on_bad(frame, last, m, result)
             return result, False
         self.lost.update(quality)
         self.matcher.accept(frame, m)
         self._moved_to(frame, last)
-        self.published = (frame, self.turn_rate)
+        self.published = (frame, self.motion, self.motion_s, self.turn_rate)
         n_seen = m.n_inliers if cfg.kf_count_inliers else m.n_visible
         keyframe = self.keyframes.due(n_seen, quality == Quality.GOOD, frame)
         result.T_w_c = frame.T_w_c
         result.covariance = pose_covariance(m.H, m.sigma, result.T_w_c)
         return result, keyframe
 
-    def _holds(self, frame: Frame, m: Matches) -> bool:
-        """Whether bad frame (its matches m) is held (MapMatcher.held), within hold_max_s of
-        the last frame published."""
-        return (self.matcher.held(m)
-                and frame.t - self.published[0].t <= self.config.hold_max_s)
+    def _on_bad(self, frame: Frame, last: Frame, m: Matches, result: FrameResult) -> None:
+        """A bad frame (its matches m, its result): held, within hold_max_s of the last frame
+        published (MapMatcher.held: tracked on from, not published, no step towards lost),
+        or a step towards lost; once lost, relocalisation and a new map go on from the last
+        frame published, not from held ones."""
+        dt = frame.t - self.published[0].t
+        if 0.0 <= dt <= self.config.hold_max_s and self.matcher.held(m):
+            self.matcher.accept(frame, m, count=False)
+            self._moved_to(frame, last)
+            result.held = True
+        elif self.lost.update(Quality.BAD):
+            result.quality = Quality.LOST
+            self.last, self.motion, self.motion_s, self.turn_rate = self.published
 
     def _moved_to(self, frame: Frame, last: Frame) -> None:
         """Frame, its pose accepted, is the last frame: the motion from `last` to it is the
@@ -136,7 +139,7 @@ class FrameTracking:
         self.last = frame
         self.motion, self.motion_s = np.eye(4), 0.0
         self.turn_rate = 0.0
-        self.published = (frame, 0.0)
+        self.published = (frame, self.motion, 0.0, 0.0)
         self.keyframes.restart()
         frame.n_visible = n_visible
         ids = frame.feat_point
@@ -157,7 +160,7 @@ class FrameTracking:
         self.motion, self.motion_s = np.eye(4), 0.0
         self.turn_rate = 0.0
         self.last = frame
-        self.published = (frame, 0.0)
+        self.published = (frame, self.motion, 0.0, 0.0)
         return FrameResult(frame.t, frame.T_w_c, self.matcher.quality(m), covariance=cov,
                            n_matches=len(m.ids), n_attempts=m.n_attempts,
                            n_inliers=m.n_inliers, new_segment=True, relocalized=True,

@@ -44,7 +44,7 @@ class Matches:
     n_hypotheses: int = 0
     # matches consistent with the pose along their depth intervals whether or not outlier
     # rejection let them into it (MapMatcher._along); counted only with hold_frames and for
-    # a bad frame (0 otherwise)
+    # a frame that is not good (0 otherwise)
     n_along: int = 0
 
     @property
@@ -117,7 +117,7 @@ class MapMatcher:
             T, H, sigma, err = fit(use)
         m.T, m.H, m.sigma = T, H, sigma
         m.inlier[use] = err * self.focal < cfg.reprojection_inlier_px
-        if cfg.hold_frames and self.quality(m) == Quality.BAD:
+        if cfg.hold_frames and self.quality(m) != Quality.GOOD:
             m.n_along = self._along(ids, obs, levels, T)
 
     def quality(self, m: Matches) -> Quality:
@@ -127,13 +127,12 @@ class MapMatcher:
         return classify(m.n_inliers, m.n_attempts, self.config)
 
     def held(self, m: Matches) -> bool:
-        """Whether a bad frame's pose (from at least MIN_POSE_MATCHES inliers) is worth
-        keeping to track on from, unpublished (hold_frames): counting the matches consistent
-        with it along their depth intervals, it would not be bad. A candidate whose interval
-        reaches out to infinity confirms a fast turn, not how far the camera moved: such a
-        pose is never published (vo.frame_tracking)."""
-        if (not self.config.hold_frames or m.n_inliers < MIN_POSE_MATCHES
-                or self.quality(m) != Quality.BAD):
+        """Whether the pose of a frame not to be published (from at least MIN_POSE_MATCHES
+        inliers) is worth keeping to track on from (hold_frames): counting the matches
+        consistent with it along their depth intervals, it would not be bad. A candidate whose
+        interval reaches out to infinity confirms a fast turn, not how far the camera moved:
+        such a pose is never published (vo.frame_tracking)."""
+        if not self.config.hold_frames or m.n_inliers < MIN_POSE_MATCHES:
             return False
         return classify(max(m.n_inliers, m.n_along), m.n_attempts,
                         self.config) != Quality.BAD

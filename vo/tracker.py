@@ -136,10 +136,16 @@ class Tracker:
         """A BA moved keyframes (the mapping thread calls this with the map lock held, so
         between two frames): the last frame, tracked against the map before, moves along
         with them; it is the next frame's prior and alignment reference (threaded, a stale
-        one is far off). A keyframe's pose is the map's: the BA set it."""
-        last = self.tracking.last
-        if last is not None and not last.is_keyframe:
-            last.T_c_w = bundle_adjustment.follow(last.T_c_w, last.feat_point, self.map, moved)
+        one is far off); so does the last frame published, which a hold may end in. A
+        keyframe's pose is the map's: the BA set it."""
+        frames = [self.tracking.last]
+        published = self.tracking.published
+        if published is not None and published[0] is not frames[0]:
+            frames.append(published[0])
+        for frame in frames:
+            if frame is not None and not frame.is_keyframe:
+                frame.T_c_w = bundle_adjustment.follow(frame.T_c_w, frame.feat_point, self.map,
+                                                       moved)
 
     # ------------------------------------------------------------------ per frame
     def process(self, image: np.ndarray, t: float, depth: np.ndarray | None = None,
