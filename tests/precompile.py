@@ -16,16 +16,20 @@ import numpy as np
 
 def tracker() -> None:
     """The tracker's kernels: the service's warm-up pan through the default tracker, then
-    through one with ORB matching and local bundle adjustment."""
+    through one with ORB matching and local bundle adjustment, and a hold's."""
     from calib.camera import CameraModel
     from daemon.run_command import warm_up
     from vo.config import TrackerConfig
+    from vo.depth_segments import segment_distances
     from vo.tracker import Tracker
 
     width, height = 320, 240
     camera = CameraModel(width, height, 300.0, 300.0, width / 2, height / 2)
     for config in (TrackerConfig(), TrackerConfig(matcher="orb", local_ba=True)):
         warm_up(lambda _frame, config=config: Tracker(camera, config), width, height)
+    # a hold's (vo.map_matching), which the warm-up's good frames never need
+    segment_distances(np.eye(4), np.eye(4)[None], np.zeros(1, np.int64),
+                      np.array([[0.0, 0.0, 1.0]]), np.ones(1), np.ones(1), np.zeros((1, 2)))
 
 
 def scene() -> None:
