@@ -1,7 +1,6 @@
 """Where a map point's match may lie given its depth uncertainty: the segment of its epipolar
 line that its inverse-depth interval projects to in a frame, and a match's distance from it.
-A frame's quality counts a candidate consistent with its pose only on that segment
-(vo.map_matching, quality_depth_intervals)."""
+A bad frame is held when enough of its matches lie on theirs (vo.map_matching, hold_frames)."""
 
 from __future__ import annotations
 
@@ -38,13 +37,13 @@ def segment_distances(T_c_w, kf_T_c_w, host, f, rho, half_width, obs):
             T_slot[host[i]] = compose(T_c_w, inv_se3(kf_T_c_w[host[i]]))
             have[host[i]] = True
         T = T_slot[host[i]]
-        near = rho[i] + half_width[i]
-        far = max(rho[i] - half_width[i], 0.0)
-        # homogeneous: a point at inverse depth r on the ray is R f + r t
-        X1, Y1, Z1 = transform(T, f[i, 0] / near, f[i, 1] / near, f[i, 2] / near)
-        X2, Y2, Z2 = (T[0, 0] * f[i, 0] + T[0, 1] * f[i, 1] + T[0, 2] * f[i, 2] + far * T[0, 3],
-                      T[1, 0] * f[i, 0] + T[1, 1] * f[i, 1] + T[1, 2] * f[i, 2] + far * T[1, 3],
-                      T[2, 0] * f[i, 0] + T[2, 1] * f[i, 1] + T[2, 2] * f[i, 2] + far * T[2, 3])
+        # transform gives R f + t; the point at inverse depth r on the ray is R f + r t
+        X, Y, Z = transform(T, f[i, 0], f[i, 1], f[i, 2])
+        tx, ty, tz = T[0, 3], T[1, 3], T[2, 3]
+        near = rho[i] + half_width[i] - 1.0
+        far = max(rho[i] - half_width[i], 0.0) - 1.0
+        X1, Y1, Z1 = X + near * tx, Y + near * ty, Z + near * tz
+        X2, Y2, Z2 = X + far * tx, Y + far * ty, Z + far * tz
         if Z1 <= 1e-9 or Z2 <= 1e-9:
             continue
         out[i] = _distance_to_segment(obs[i, 0], obs[i, 1], X1 / Z1, Y1 / Z1, X2 / Z2, Y2 / Z2)
