@@ -65,10 +65,11 @@ class HandoffGate:
             self._done_t = max(self._done_t, t_source)
             self._cond.notify_all()
 
-    def wait(self, frame: object) -> None:
-        """Block until the frame (a vo Frame, `.t` its source time) was handled."""
+    def wait(self, frame: object) -> bool:
+        """Block until the frame (a vo Frame, `.t` its source time) was handled; False when
+        the timeout released it instead."""
         with self._cond:
-            self._cond.wait_for(lambda: self._done_t >= frame.t, self.timeout_s)
+            return self._cond.wait_for(lambda: self._done_t >= frame.t, self.timeout_s)
 
 
 class TrackingThread(threading.Thread):
