@@ -31,9 +31,6 @@ class TrackerConfig:
     align_max_level: int = 4
     align_min_level: int = 2
     align_iterations: int = 30
-    # a level's Gauss-Newton stops once an update moves the patches less than this (pixels of
-    # that level); 0: only at a vanishing update
-    align_min_step_px: float = 0.0
     # Tukey-weighted intensity residuals (vo.sparse_align), else plain least squares (6.10):
     # a few patches that no longer fit their reference pulled the pose (RESULTS.md:
     # tracker-align-robust)

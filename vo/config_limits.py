@@ -23,7 +23,6 @@ LIMITS = {
     "align_max_level": LEVEL,
     "align_min_level": LEVEL,
     "align_iterations": ITERATIONS,
-    "align_min_step_px": interval(0.0, 10.0),
     "max_matches": interval(6, 100_000),
     "crowded_min_matches": interval(0, 100_000),
     "align2d_iterations": ITERATIONS,

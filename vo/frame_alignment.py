@@ -31,8 +31,7 @@ def align_frame(frame: Frame, ref: Frame, ids: np.ndarray, px: np.ndarray, pts: 
     T_cur_ref = frame.T_c_w @ inv_se3(ref.T_c_w)
     T_cur_ref = sparse_align.align(camera.params, ref.pyr, frame.pyr, px, xyz, T_cur_ref,
                                    config.align_max_level, config.align_min_level,
-                                   config.align_iterations, config.align_robust, rotation_only,
-                                   config.align_min_step_px)
+                                   config.align_iterations, config.align_robust, rotation_only)
     frame.T_c_w = T_cur_ref @ ref.T_c_w
     if not measure:
         return np.nan

@@ -163,12 +163,10 @@ def _normal_equations(res, seen, jac, c, wj):
 
 
 @numba.njit(cache=True, nogil=True)
-def align_level(params, image, level, patches, jac, valid, xyz, T_cur_ref, iterations, robust,
-                min_step_px=0.0):
+def align_level(params, image, level, patches, jac, valid, xyz, T_cur_ref, iterations, robust):
     """Gauss-Newton at one level (`image` as for reference_patches; Tukey-weighted with
-    `robust`, the scale from the residuals at T_cur_ref), stopping once an update moves the
-    patches less than `min_step_px` pixels of this level (vo.sparse_align.step_pixels);
-    returns the refined T_cur_ref and the pixel count used."""
+    `robust`, the scale from the residuals at T_cur_ref); returns the refined T_cur_ref and the
+    pixel count used."""
     T = T_cur_ref.copy()
     n = patches.shape[0] * N4
     res, seen, res_new = np.empty(n), np.empty(n), np.empty(n)
@@ -189,28 +187,14 @@ def align_level(params, image, level, patches, jac, valid, xyz, T_cur_ref, itera
         if cost_new / max(count_new, 1) > cost / max(count, 1) or count_new < 6 * N4:
             break
         T, H, b, cost, count = T_new, H_new, b_new, cost_new, count_new
-        if np.sqrt(xi @ xi) < 1e-10 or (min_step_px > 0.0
-                                          and step_pixels(params, level, xi, xyz) < min_step_px):
+        if np.sqrt(xi @ xi) < 1e-10:
             break
     return T, count
 
 
 @numba.njit(cache=True, nogil=True)
-def step_pixels(params, level, xi, xyz):
-    """About how far the update xi = (v, w) moves the patches of points xyz (reference
-    camera) in pixels of `level`: f |w| + f |v| times their mean inverse depth."""
-    inv_depth = 0.0
-    for p in range(xyz.shape[0]):
-        inv_depth += 1.0 / max(abs(xyz[p, 2]), 1e-12)
-    inv_depth /= max(xyz.shape[0], 1)
-    v = np.sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2])
-    w = np.sqrt(xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5])
-    return max(params[1], params[2]) / 2.0 ** level * (w + v * inv_depth)
-
-
-@numba.njit(cache=True, nogil=True)
 def _align_levels(params, ref, cur, px_ref, xyz_ref, T_cur_ref, levels, iterations, robust,
-                  rotation_only, min_step_px):
+                  rotation_only):
     """align's levels max..min in one call: `ref`, `cur` = (flat, offsets, widths, heights)
     of the pyramids, `levels` = (max, min)."""
     T = T_cur_ref.copy()
@@ -221,26 +205,23 @@ def _align_levels(params, ref, cur, px_ref, xyz_ref, T_cur_ref, levels, iteratio
         if rotation_only:
             jac[:3] = 0.0  # no gradient along translation: the update only turns
         T, _ = align_level(params, (cur[0], cur[1][level], cur[2][level], cur[3][level]), level,
-                           patches, jac, valid, xyz_ref, T, iterations, robust, min_step_px)
+                           patches, jac, valid, xyz_ref, T, iterations, robust)
     return T
 
 
 def align(params: np.ndarray, ref_pyr, cur_pyr, px_ref: np.ndarray, xyz_ref: np.ndarray,
           T_cur_ref: np.ndarray, max_level: int, min_level: int, iterations: int,
-          robust: bool = True, rotation_only: bool = False, min_step_px: float = 0.0
-          ) -> np.ndarray:
+          robust: bool = True, rotation_only: bool = False) -> np.ndarray:
     """T_cur_ref refined by aligning 4x4 patches around px_ref (level 0) of points xyz_ref (in
     the reference camera) from the reference pyramid to the current one, levels max..min;
     `robust` Tukey-weights the residuals (else plain least squares, as the thesis);
     `rotation_only` keeps the translation of T_cur_ref (from one without, the camera turns
-    where the reference stood); each level stops once an update moves the patches less
-    than `min_step_px` of its pixels."""
+    where the reference stood)."""
     return _align_levels(params, (ref_pyr.flat, *ref_pyr.layout), (cur_pyr.flat, *cur_pyr.layout),
                          np.ascontiguousarray(px_ref, dtype=np.float64),
                          np.ascontiguousarray(xyz_ref, dtype=np.float64),
                          np.ascontiguousarray(T_cur_ref, dtype=np.float64),
-                         (max_level, min_level), iterations, robust, rotation_only,
-                         float(min_step_px))
+                         (max_level, min_level), iterations, robust, rotation_only)
 
 
 @numba.njit(cache=True, nogil=True)
