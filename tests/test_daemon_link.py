@@ -42,6 +42,9 @@ def udp_run():
         run = RunningService(cfg)
         time.sleep(RUN_S)
         code = run.stop()
+    # what the service sent is read from the simulator's socket before it stops
+    wait_for(lambda: len(sim.messages("ODOMETRY")) >= run.service.stats.sent
+             and len(sim.messages("HEARTBEAT")) >= len(sent))
     sim.stop()
     run.heartbeats_sent = np.array(sent)
     return sim, run, code
@@ -69,7 +72,8 @@ def test_odometry_every_field(udp_run):
         assert m.estimator_type == mavlink2.MAV_ESTIMATOR_TYPE_VIO
         assert m.quality == 100 and m.reset_counter == 0
         # stamped at capture on the same monotonic clock as the simulator's arrival times
-        assert 0.0 < rec.t - m.time_usec / 1e6 < 0.3
+        # (another clock would be off by far more than a second; 0.1 s seen on a busy machine)
+        assert 0.0 < rec.t - m.time_usec / 1e6 < 1.0
         dt = (m.time_usec - prev.msg.time_usec) / 1e6
         p0 = np.array([prev.msg.x, prev.msg.y, prev.msg.z])
         p1 = np.array([m.x, m.y, m.z])
@@ -147,7 +151,9 @@ def test_timesync_answered_on_the_stamp_clock(udp_run):
     for rec in replies:
         m = rec.msg
         assert m.ts1 / 1e9 <= m.tc1 / 1e9 <= rec.t  # answered with CLOCK_MONOTONIC
-    assert min(sim.timesync_rtts) >= 0.0 and max(sim.timesync_rtts) < 0.1  # boot clock echoed
+    # the boot clock echoed (another clock would be seconds off); 30 ms seen on a busy machine
+    rtts = sim.timesync_rtts
+    assert min(rtts) >= 0.0 and np.median(rtts) < 0.05 and max(rtts) < 1.0
     assert run.service.stats.timesync_replies >= len(replies)
 
 

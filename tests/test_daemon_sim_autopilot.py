@@ -46,6 +46,13 @@ class Client:
             for msg in self.parser.parse_buffer(data) or []:
                 self.received.append((time.monotonic(), msg))
 
+    def listen_until(self, done, timeout: float = 30.0) -> None:
+        """Listen until done() holds (at most `timeout` s): what a test waits for, not a
+        window a frozen or starved process could miss."""
+        end = time.monotonic() + timeout
+        while not done() and time.monotonic() < end:
+            self.listen(0.05)
+
     def of(self, name: str) -> list:
         return [m for _, m in self.received if m.get_type() == name]
 
@@ -102,15 +109,18 @@ def test_origin_only_once_and_only_when_the_ekf_is_ready():
         client.send(client.mav.set_gps_global_origin_encode(1, 1, 2, 3))
         client.listen(0.1)
         assert client.of("GPS_GLOBAL_ORIGIN") == [] and sim.origin is None
-        client.listen(0.5)
+        client.listen_until(lambda: any("tilt alignment complete" in m.text
+                                        for m in client.of("STATUSTEXT")))
         command = client.mav.command_int_encode(1, 1, 0, MAV_CMD_DO_SET_GLOBAL_ORIGIN, 0, 0,
                                                 0, 0, 0, 0, 470000000, 80000000, 500.0)
         client.send(command)
-        client.listen(0.2)
+        client.listen_until(lambda: len(client.of("COMMAND_ACK")) >= 1)
         client.send(client.mav.set_gps_global_origin_encode(1, 5, 6, 7))
         client.send(client.mav.command_long_encode(1, 1, mavlink2.MAV_CMD_REQUEST_MESSAGE, 0,
                                                    49, 0, 0, 0, 0, 0, 0))
-        client.listen(0.2)
+        client.listen_until(lambda: len(client.of("COMMAND_ACK")) >= 2
+                            and len(client.of("GPS_GLOBAL_ORIGIN")) >= 2)
+        client.listen(0.2)  # nothing more comes
     origins = client.of("GPS_GLOBAL_ORIGIN")
     assert [(o.latitude, o.longitude, o.altitude) for o in origins] == [(470000000, 80000000,
                                                                          500000)] * 2
@@ -156,7 +166,8 @@ def test_timesync_and_streams_on_one_boot_clock():
     with SimAutopilot(configured_options(timesync_hz=20)) as sim:
         client = Client(sim)
         client.send(client.mav.heartbeat_encode(18, 8, 0, 0, 4))
-        client.listen(1.5)
+        client.listen_until(lambda: len(client.of("TIMESYNC")) >= 20
+                            and len(client.of("SCALED_IMU")) >= 50)
     clock, by_stamps, by_timesync = ClockMap(), [], []
     for arrival, msg in client.received:
         if msg.get_type() == "SCALED_IMU":
@@ -183,7 +194,7 @@ def test_absurd_motion_saturates_the_imu_like_a_real_sensor():
     with SimAutopilot(configured_options(trajectory=wild, timesync_hz=0)) as sim:
         client = Client(sim)
         client.send(client.mav.heartbeat_encode(18, 8, 0, 0, 4))
-        client.listen(0.6)
+        client.listen_until(lambda: len(client.of("SCALED_IMU")) >= 20)
         assert sim._thread.is_alive()
     imu = client.of("SCALED_IMU")
     assert len(imu) >= 20 and sim.skipped_messages == 0
@@ -204,7 +215,8 @@ def test_unencodable_values_are_skipped_and_logged_never_fatal(caplog):
         client = Client(sim)
         client.send(client.mav.heartbeat_encode(18, 8, 0, 0, 4))
         with caplog.at_level(logging.WARNING, logger="sdvl.sim.autopilot"):
-            client.listen(1.2)
+            client.listen_until(lambda: len(client.of("ATTITUDE")) >= 15
+                                and sim.skipped_messages > 20)
         assert sim._thread.is_alive()
     assert sim.skipped_messages > 20
     assert len(client.of("HEARTBEAT")) >= 1 and len(client.of("ATTITUDE")) >= 15

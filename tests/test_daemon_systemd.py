@@ -86,7 +86,10 @@ def test_notifier_abstract_socket():
 
 def test_sdvl_run_under_notify_socket_and_sigterm(tmp_path):
     """The real `sdvl run` (real tracker, test-pattern camera) against the simulated autopilot:
-    READY=1, WATCHDOG=1 and STATUS= arrive; SIGTERM stops it cleanly in under 2 s."""
+    READY=1, WATCHDOG=1 and STATUS= arrive; SIGTERM stops it cleanly before systemd would
+    kill it (the unit's TimeoutStopSec; 0.06 s on an idle machine, 1.0 s with 20 busy loops,
+    when SIGTERM comes during the first frame and the tracking thread is left after
+    THREAD_JOIN_S)."""
     notify = receiver(tmp_path / "notify")
     with SimAutopilot(configured_options(heartbeat_hz=5)) as sim:
         config = tmp_path / "sdvl.toml"
@@ -115,7 +118,7 @@ def test_sdvl_run_under_notify_socket_and_sigterm(tmp_path):
         stderr = proc.stderr.read()
         heartbeats = sim.messages("HEARTBEAT")
     assert proc.returncode == 0, stderr
-    assert stop_s < 2.0
+    assert stop_s < float(unit_settings()["TimeoutStopSec"][0])
     notify.settimeout(0.5)
     while "STOPPING=1" not in got[-1]:
         got.append(notify.recv(4096).decode())

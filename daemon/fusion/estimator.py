@@ -101,6 +101,7 @@ class FusionEstimator:
         self.dropped_stamps = 0
         self._inbox: deque[tuple[float, object]] = deque(maxlen=INBOX_LIMIT)
         self._lock = threading.Lock()  # the inbox, between the link's thread and ours
+        self._new_offset: tuple[float | None] | None = None  # set_clock_offset's, not yet used
         self._filter_lock = threading.Lock()  # the filter, between frames and bridges
         self.first_aligned_s: float | None = None  # when a map's scale first converged
         self.rest = RestDetector(cfg)
@@ -123,9 +124,10 @@ class FusionEstimator:
             self._inbox.append((self.now(), msg))
 
     def set_clock_offset(self, offset_s: float | None) -> None:
-        """Our monotonic time minus the autopilot's boot time, from TIMESYNC (seconds)."""
+        """Our monotonic time minus the autopilot's boot time, from TIMESYNC (seconds); the
+        clock map takes it before it maps the next messages (the tracking thread's drain)."""
         with self._lock:
-            self.clock.set_offset(offset_s)
+            self._new_offset = (offset_s,)
 
     def on_frame(self, result: object, t_capture: float) -> VisionEstimate | None:
         """Fuse one tracker FrameResult captured at `t_capture` (our monotonic seconds); the
@@ -262,12 +264,18 @@ class FusionEstimator:
         return dataclasses.replace(estimate, reset_counter=self.reset_counter)
 
     def _drain(self) -> None:
-        """Autopilot messages -> attitude track and timeline events on our clock."""
+        """Autopilot messages -> attitude track and timeline events on our clock. The inbox
+        is only emptied under its lock: the link's loop, which queues every message, never
+        waits for the fusion (a first numba call took 1 s on a loaded machine and made the
+        loop's messages late enough to be dropped)."""
         with self._lock:
             items = list(self._inbox)
             self._inbox.clear()
-            for arrival, msg in items:
-                self._ingest(arrival, msg)
+            new_offset, self._new_offset = self._new_offset, None
+        if new_offset is not None:
+            self.clock.set_offset(new_offset[0])
+        for arrival, msg in items:
+            self._ingest(arrival, msg)
 
     def _ingest(self, arrival: float, msg: object) -> None:
         states = flight_states(msg)
