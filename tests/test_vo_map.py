@@ -79,7 +79,7 @@ def test_a_keyframe_observes_only_live_points_after_its_slots_are_recycled():
     # name slots that points created since may have taken over
     cam = CameraModel(64, 48, 50.0, 50.0, 31.5, 23.5)
     m = Map(64, 48, 3, 5)
-    ids = _add(m.points, 20)
+    ids = _add(m.points, 20, host=1)  # hosted by another keyframe: observations only
     kf = Frame(0, 0.0, np.zeros((48, 64), np.uint8), cam, 3)
     uv = np.arange(40.0).reshape(20, 2)
     kf.set_features(ids, uv, np.zeros(20, np.int64))
@@ -88,10 +88,29 @@ def test_a_keyframe_observes_only_live_points_after_its_slots_are_recycled():
     for _ in range(RELEASE_DELAY):
         m.points.step(0)
     m.prune_observations()
-    reused = _add(m.points, 8)
+    reused = _add(m.points, 8, host=1)
     assert np.intersect1d(reused, kf.feat_point).size == 8
     seen, px = m.observed_by(slot)
     assert np.array_equal(seen, ids[8:]) and np.array_equal(px, uv[8:])
+
+
+def test_a_keyframe_observes_the_candidates_it_hosts_once():
+    """Relocalisation aligns to a keyframe through its candidates too (a map of rotations
+    converges few points), at the pixels where the keyframe detected them; a candidate it
+    also observes is listed once, deleted ones not at all."""
+    cam = CameraModel(64, 48, 50.0, 50.0, 31.5, 23.5)
+    m = Map(64, 48, 3, 5)
+    kf = Frame(0, 0.0, np.zeros((48, 64), np.uint8), cam, 3)
+    kf.set_features(np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0, np.int64))
+    slot = m.add_keyframe(kf)
+    hosted = m.points.add(slot, np.arange(6.0), np.arange(6.0) + 10, np.zeros(6, np.int64),
+                          np.tile([0.0, 0.0, 1.0], (6, 1)), np.ones(6), np.ones(6),
+                          np.ones(6), 10.0, 10.0, np.eye(4))
+    m.obs.add(slot, hosted[:2], np.array([[0.0, 10.0], [1.0, 11.0]]), np.zeros(2, np.int64))
+    m.points.delete(hosted[5:])
+    seen, px = m.observed_by(slot)
+    assert np.array_equal(seen, hosted[:5])
+    assert np.array_equal(px, np.column_stack((np.arange(5.0), np.arange(5.0) + 10)))
 
 
 def test_quality_as_in_thesis():
