@@ -95,9 +95,9 @@ def test_a_keyframe_observes_only_live_points_after_its_slots_are_recycled():
 
 
 def test_a_keyframe_observes_the_candidates_it_hosts_once():
-    """Relocalisation aligns to a keyframe through its candidates too (a map of rotations
-    converges few points), at the pixels where the keyframe detected them; a candidate it
-    also observes is listed once, deleted ones not at all."""
+    """Relocalisation aligns to a keyframe through the points it hosts too, candidates (a map
+    of rotations converges few points) and converged ones, at the pixels where the keyframe
+    detected them; a point it also observes is listed once, deleted ones not at all."""
     cam = CameraModel(64, 48, 50.0, 50.0, 31.5, 23.5)
     m = Map(64, 48, 3, 5)
     kf = Frame(0, 0.0, np.zeros((48, 64), np.uint8), cam, 3)
@@ -108,6 +108,7 @@ def test_a_keyframe_observes_the_candidates_it_hosts_once():
                           np.ones(6), 10.0, 10.0, np.eye(4))
     m.obs.add(slot, hosted[:2], np.array([[0.0, 10.0], [1.0, 11.0]]), np.zeros(2, np.int64))
     m.points.delete(hosted[5:])
+    m.points.status[hosted[4]] = CONVERGED
     seen, px = m.observed_by(slot)
     assert np.array_equal(seen, hosted[:5])
     assert np.array_equal(px, np.column_stack((np.arange(5.0), np.arange(5.0) + 10)))

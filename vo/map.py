@@ -202,13 +202,15 @@ class Map:
     def observed_by(self, slot: int) -> tuple[np.ndarray, np.ndarray]:
         """(point ids, level-0 pixels) of the live points keyframe `slot` observes now: its
         observations (its own feature list may name slots recycled since it was taken), then
-        the candidates it hosts, where it detected them. A map of rotations converges few
-        points (tum_fr1_rpy: none in 50 frames), so most keyframes observe only candidates."""
+        the live points it hosts, where it detected them: those never get a row for their
+        host, and a map of rotations converges few points (tum_fr1_rpy: none in 50 frames),
+        so most keyframes observe only candidates."""
         with self.lock:
             rows = self.obs.kf == slot
             ids, uv = self.obs.point[rows], self.obs.uv[rows]
             pts = self.points
-            hosted = np.flatnonzero((pts.host == slot) & (pts.status == CANDIDATE))
+            hosted = np.flatnonzero((pts.host == slot) & ((pts.status == CANDIDATE)
+                                                          | (pts.status == CONVERGED)))
             hosted = hosted[~np.isin(hosted, ids)]
             return (np.concatenate((ids, hosted)),
                     np.concatenate((uv, np.column_stack((pts.u[hosted], pts.v[hosted])))))
