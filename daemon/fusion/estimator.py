@@ -265,9 +265,9 @@ class FusionEstimator:
 
     def _drain(self) -> None:
         """Autopilot messages -> attitude track and timeline events on our clock. The inbox
-        is only emptied under its lock: the link's loop, which queues every message, never
-        waits for the fusion (a first numba call took 1 s on a loaded machine and made the
-        loop's messages late enough to be dropped)."""
+        is only emptied under its lock: the link's loop, which queues every message, does not
+        wait for the messages' fusion (a first numba call took 1 s on a loaded machine and
+        made the loop's messages late enough to be dropped)."""
         with self._lock:
             items = list(self._inbox)
             self._inbox.clear()
