@@ -62,7 +62,7 @@ class FrameTracking:
         self.lost.update(quality)
         self.matcher.accept(frame, m)
         self._moved_to(frame, last)
-        self.published = (frame, self.motion, self.motion_s, self.turn_rate)
+        self._publish(frame)
         n_seen = m.n_inliers if cfg.kf_count_inliers else m.n_visible
         keyframe = self.keyframes.due(n_seen, quality == Quality.GOOD, frame)
         result.T_w_c = frame.T_w_c
@@ -91,6 +91,18 @@ class FrameTracking:
         self.motion_s = max(dt, 0.0)
         self.turn_rate = rotation_angle_deg(self.motion[:3, :3]) / dt if dt > 0 else 0.0
         self.last = frame
+
+    def _publish(self, frame: Frame) -> None:
+        """Frame, the last one, is published: what tracking goes on from after a hold."""
+        self.published = (frame, self.motion, self.motion_s, self.turn_rate)
+
+    def _at_rest(self, frame: Frame) -> None:
+        """Frame is the last and published one, with no motion known yet (a new map or a
+        relocalised frame)."""
+        self.last = frame
+        self.motion, self.motion_s = np.eye(4), 0.0
+        self.turn_rate = 0.0
+        self._publish(frame)
 
     def _align(self, frame: Frame, last: Frame) -> PriorUse:
         """Sparse image alignment to the last frame from the predicted pose: the constant-
@@ -136,10 +148,7 @@ class FrameTracking:
     def start(self, frame: Frame, n_visible: int) -> FrameResult:
         """Track on from the second keyframe of a new map (its points `frame.feat_point`):
         its result, a new segment with the covariance of its pose from its matches."""
-        self.last = frame
-        self.motion, self.motion_s = np.eye(4), 0.0
-        self.turn_rate = 0.0
-        self.published = (frame, self.motion, 0.0, 0.0)
+        self._at_rest(frame)
         self.keyframes.restart()
         frame.n_visible = n_visible
         ids = frame.feat_point
@@ -157,10 +166,7 @@ class FrameTracking:
         believed)."""
         self.matcher.accept(frame, m, count)
         self.lost = LostCounter(self.config)
-        self.motion, self.motion_s = np.eye(4), 0.0
-        self.turn_rate = 0.0
-        self.last = frame
-        self.published = (frame, self.motion, 0.0, 0.0)
+        self._at_rest(frame)
         return FrameResult(frame.t, frame.T_w_c, self.matcher.quality(m), covariance=cov,
                            n_matches=len(m.ids), n_attempts=m.n_attempts,
                            n_inliers=m.n_inliers, new_segment=True, relocalized=True,
